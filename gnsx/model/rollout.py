@@ -1,0 +1,114 @@
+"""Autoregressive rollouts: the learned simulator fed its own predictions, and the physics-free baseline."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.model.simulator import LearnedSimulator
+
+
+@torch.inference_mode()
+def rollout(
+    simulator: LearnedSimulator,
+    initial_positions: Tensor,
+    particle_type: Tensor,
+    num_steps: int,
+    static_positions: Tensor | None = None,
+    progress: bool = False,
+) -> Tensor:
+    """Predict ``num_steps`` frames by feeding each prediction back as input.
+
+    Args:
+        simulator: the model (its mode is not changed; it has no dropout or batch norm).
+        initial_positions: ``[N, history + 1, D]`` the first ``simulator.input_frames`` frames, oldest first.
+        particle_type: ``[N]`` int64.
+        num_steps: number of frames to predict.
+        static_positions: optional ``[num_steps, N, D]`` positions of the static (kinematic) particles for
+            each predicted frame (e.g. the ground truth, DeepMind's convention for moving obstacles); only
+            the rows of static particles are read. ``None``: static particles stay at their last input
+            position.
+        progress: show a tqdm progress bar.
+
+    Returns:
+        ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
+    """
+    frames = simulator.input_frames
+    if initial_positions.dim() != 3 or initial_positions.shape[1] != frames:
+        raise ValueError(
+            f"rollout: initial_positions must be [num_particles, {frames}, dim] (the model reads "
+            f"{frames} frames), got {tuple(initial_positions.shape)}"
+        )
+    num_particles, _, dim = initial_positions.shape
+    if static_positions is not None and tuple(static_positions.shape) != (num_steps, num_particles, dim):
+        raise ValueError(
+            f"rollout: static_positions must be [num_steps, N, D] = [{num_steps}, {num_particles}, {dim}], "
+            f"got {tuple(static_positions.shape)}"
+        )
+    static = (particle_type == KINEMATIC_PARTICLE_ID)[:, None]  # [N, 1]
+    window = initial_positions
+    predictions = []
+    for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
+        next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
+        if static_positions is not None:
+            next_position = torch.where(static, static_positions[step], next_position)
+        predictions.append(next_position)
+        window = torch.cat([window[:, 1:], next_position[:, None]], dim=1)
+    if not predictions:
+        return initial_positions.new_empty((0, num_particles, dim))
+    return torch.stack(predictions)
+
+
+@torch.inference_mode()
+def physics_free_baseline(
+    initial_positions: Tensor,
+    particle_type: Tensor,
+    num_steps: int,
+    gravity_per_frame: Tensor,
+    bounds: Tensor | Sequence[Sequence[float]],
+) -> Tensor:
+    """Constant velocity plus gravity, clamped to the domain: what a learned model must beat.
+
+    Each step: ``v <- v + g``, ``p <- clamp(p + v, bounds)``, then ``v <- p_new - p_old`` so a particle
+    that hits a wall stops moving into it (a perfectly inelastic wall) instead of piling up speed.
+    Static particles never move.
+
+    Args:
+        initial_positions: ``[N, F, D]`` with ``F >= 2`` frames, oldest first (the last two give v).
+        particle_type: ``[N]`` int64.
+        num_steps: number of frames to predict.
+        gravity_per_frame: ``[D]`` acceleration per frame^2 (e.g. the data's mean water acceleration, or
+            ``9.8 * dt**2`` in -y).
+        bounds: ``[D, 2]`` domain ``[lower, upper]`` per dimension.
+
+    Returns:
+        ``[num_steps, N, D]`` positions of the next ``num_steps`` frames.
+    """
+    if initial_positions.dim() != 3 or initial_positions.shape[1] < 2:
+        raise ValueError(
+            "physics_free_baseline: initial_positions must be [N, >= 2, D], "
+            f"got {tuple(initial_positions.shape)}"
+        )
+    bounds = torch.as_tensor(bounds, dtype=initial_positions.dtype, device=initial_positions.device)
+    gravity = torch.as_tensor(
+        gravity_per_frame, dtype=initial_positions.dtype, device=initial_positions.device
+    )
+    dynamic = (particle_type != KINEMATIC_PARTICLE_ID).to(initial_positions.dtype)[:, None]  # [N, 1]
+    position = initial_positions[:, -1]
+    velocity = (position - initial_positions[:, -2]) * dynamic
+    frames = []
+    for _ in range(num_steps):
+        velocity = velocity + gravity * dynamic
+        next_position = torch.maximum(torch.minimum(position + velocity, bounds[:, 1]), bounds[:, 0])
+        # Static particles may lie outside the domain (DeepMind's ramps do not); never clamp them.
+        next_position = torch.where(dynamic.bool(), next_position, position)
+        velocity = next_position - position
+        position = next_position
+        frames.append(position)
+    if not frames:
+        return initial_positions.new_empty((0, *initial_positions[:, -1].shape))
+    return torch.stack(frames)
