@@ -1,0 +1,146 @@
+"""geoelements/gns ``.npz`` files: ``{split}.npz``, a dict of trajectories.
+
+Layout (geoelements/gns ``docs/gns_data.md`` and ``gns/data_loader.py``): ``np.savez_compressed(path,
+**{name: (positions, particle_type[, material_property])})``, so each member ``name.npy`` is a pickled object
+array ``[2]`` (or ``[3]``) holding ``positions`` ``[T, N, D]`` (float32 or float64) and ``particle_type``
+``[N]`` (or one scalar type for every particle). Datasets shipped by geoelements name the members
+``simulation_trajectory_<i>``; newer files may instead hold one member ``gns_data``, an array of such tuples.
+``material_property`` (a per-particle feature gnsx does not model) is ignored.
+
+**Pickle**: object arrays can only be stored pickled, so reading uses ``np.load(..., allow_pickle=True)``,
+which can execute code from a malicious file: read only ``.npz`` files you trust. This is the only reader in
+gnsx that unpickles; gnsx's own store never does.
+
+Keys: the trailing integer of the member name (``simulation_trajectory_12`` -> 12), else the member's position
+in the file. The writer names members ``simulation_trajectory_<key>`` and streams them into the zip one at a
+time (``np.savez_compressed`` would need every trajectory in memory).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+import tempfile
+import zipfile
+import zlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from gnsx.data.trajectory import Trajectory
+from gnsx.data.validate import check_trajectory, trajectory_where
+from gnsx.errors import DataError
+
+GNS_DATA_KEY = "gns_data"
+MEMBER_PREFIX = "simulation_trajectory_"
+_TRAILING_INT = re.compile(r"(\d+)$")
+# Errors a damaged zip member or pickle can raise while loading.
+_LOAD_ERRORS = (
+    ValueError,
+    OSError,
+    EOFError,
+    KeyError,
+    zipfile.BadZipFile,
+    zlib.error,
+    pickle.UnpicklingError,
+)
+
+
+def read_npz(path: str | os.PathLike) -> Iterator[Trajectory]:
+    """Yield the trajectories of a geoelements/gns ``.npz`` (one member in memory at a time), validated.
+
+    Raises:
+        DataError: unreadable zip, a damaged member, a member not shaped ``(positions, particle_type)``, or a
+            :func:`~gnsx.data.validate.check_trajectory` failure, naming the file and trajectory (and member).
+    """
+    path = Path(path)
+    try:
+        npz = np.load(path, allow_pickle=True)  # pickle required: see the module docstring
+    except FileNotFoundError:
+        raise DataError(str(path), "file not found") from None
+    except _LOAD_ERRORS as e:
+        raise DataError(str(path), f"not a readable .npz file ({e})") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise DataError(str(path), "expected an .npz archive, found a single .npy array")
+    with npz:
+        names = list(npz.files)
+        if GNS_DATA_KEY in names:
+            items = _load_member(npz, GNS_DATA_KEY, path)
+            for i, item in enumerate(items):
+                where = f"{trajectory_where(path, i)} (member '{GNS_DATA_KEY}'[{i}])"
+                yield _to_trajectory(item, key=i, where=where)
+            return
+        for i, name in enumerate(names):
+            where = f"{trajectory_where(path, i)} (member '{name}')"
+            match = _TRAILING_INT.search(name)
+            key = int(match.group(1)) if match else i
+            yield _to_trajectory(_load_member(npz, name, path), key=key, where=where)
+
+
+def _load_member(npz: np.lib.npyio.NpzFile, name: str, path: Path) -> np.ndarray:
+    try:
+        return npz[name]
+    except _LOAD_ERRORS as e:
+        raise DataError(f"{path} (member '{name}')", f"cannot read: truncated or corrupt ({e})") from None
+
+
+def _to_trajectory(item: object, key: int, where: str) -> Trajectory:
+    """``(positions [T,N,D], particle_type [N] or scalar[, material_property])`` to a validated Trajectory."""
+    if isinstance(item, np.ndarray) and item.ndim == 0 and item.dtype.hasobject:
+        item = item.item()  # a tuple saved as a 0-d object array
+    if not isinstance(item, np.ndarray | tuple | list | np.void) or len(item) not in (2, 3):
+        shape = getattr(item, "shape", None)
+        raise DataError(
+            where,
+            f"expected a (positions, particle_type[, material_property]) tuple, got {type(item).__name__}"
+            + (f" of shape {shape}" if shape is not None else ""),
+        )
+    position = np.asarray(item[0])
+    particle_type = np.asarray(item[1])
+    if position.ndim == 3 and particle_type.ndim == 0:
+        # geoelements allows one scalar type for all particles (its loader np.full()s it).
+        particle_type = np.full(position.shape[1], particle_type)
+    if np.issubdtype(particle_type.dtype, np.floating) and np.all(particle_type == np.round(particle_type)):
+        particle_type = particle_type.astype(np.int64)  # integral floats: some writers store types as float
+    if np.issubdtype(particle_type.dtype, np.integer):
+        particle_type = particle_type.astype(np.int64)
+    traj = Trajectory(position=position, particle_type=particle_type, key=key)
+    check_trajectory(traj, where)
+    traj.position = position.astype(np.float32, copy=False)
+    return traj
+
+
+def write_npz(path: str | os.PathLike, trajectories: Iterable[Trajectory]) -> int:
+    """Write trajectories as a geoelements/gns ``.npz`` (compressed, streamed, atomic); return the count.
+
+    Members are ``simulation_trajectory_<key>`` object arrays ``(positions float32 [T,N,D],
+    particle_type int64 [N])``, exactly what ``np.savez_compressed(path, **{name: (pos, types)})`` produces.
+
+    Raises:
+        DataError: a bad trajectory, or two trajectories with the same key (member names would collide).
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    seen: set[int] = set()
+    try:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+            for i, traj in enumerate(trajectories):
+                where = trajectory_where(path, i)
+                check_trajectory(traj, where)
+                key = int(traj.key)
+                if key in seen:
+                    raise DataError(where, f"duplicate key {key}: npz member names must be unique")
+                seen.add(key)
+                item = np.empty(2, dtype=object)
+                item[0] = np.ascontiguousarray(traj.position, dtype=np.float32)
+                item[1] = np.ascontiguousarray(traj.particle_type, dtype=np.int64)
+                with zf.open(f"{MEMBER_PREFIX}{key}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, item, allow_pickle=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return len(seen)
