@@ -1,0 +1,140 @@
+"""LightningDataModule: random training frames and whole validation/test trajectories from a gnsx dataset.
+
+Training samples are single frames drawn uniformly over all trajectories of the train split (DeepMind's
+scheme): frame ``k`` of trajectory ``t`` gives the model the positions ``p[k-H..k]`` (``H`` = velocity history)
+and the target ``p[k+1]``. Velocities and accelerations are derived on the fly from these ``H + 2`` contiguous
+frames, so the dataset on disk holds positions only (one memory-mapped read per sample).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+from torch_geometric.data import Batch, Data
+
+from gnsx.data.metadata import Metadata
+from gnsx.data.store import SplitReader, load_metadata
+from gnsx.data.trajectory import Trajectory
+
+
+class FrameDataset(Dataset):
+    """Every usable frame of a split as one sample.
+
+    A sample is a PyG ``Data`` with ``position_sequence [N, H+1, D]`` (oldest first), ``next_position [N, D]``
+    and ``particle_type [N]``; ``Batch`` concatenates samples and adds ``batch [sum N]``.
+    """
+
+    def __init__(self, reader: SplitReader, history: int):
+        self.reader = reader
+        self.history = history
+        # Frame k is usable when p[k-H] and p[k+1] exist: k in [H, T-2], i.e. T-H-1 samples per trajectory.
+        counts = np.array([max(reader.num_frames(i) - history - 1, 0) for i in range(len(reader))], np.int64)
+        if counts.sum() == 0:
+            raise ValueError(f"{reader.root}: no trajectory has more than {history + 1} frames")
+        self.cumulative = np.cumsum(counts)
+
+    def __len__(self) -> int:
+        return int(self.cumulative[-1])
+
+    def __getitem__(self, index: int) -> Data:
+        traj_index = int(np.searchsorted(self.cumulative, index, side="right"))
+        first = index - (self.cumulative[traj_index - 1] if traj_index > 0 else 0)
+        traj = self.reader[traj_index]
+        # Frames first .. first+H+1: the H+1 inputs and the target; one contiguous slice of the memmap.
+        window = torch.from_numpy(np.array(traj.position[first : first + self.history + 2], dtype=np.float32))
+        return Data(
+            position_sequence=window[:-1].transpose(0, 1).contiguous(),
+            next_position=window[-1],
+            particle_type=torch.from_numpy(np.array(traj.particle_type, dtype=np.int64)),
+            num_nodes=window.shape[1],
+        )
+
+
+class TrajectoryDataset(Dataset):
+    """Whole trajectories of a split (for rollouts), as tensors ``position [T, N, D]``, ``particle_type [N]``."""
+
+    def __init__(self, reader: SplitReader, max_trajectories: int | None = None):
+        self.reader = reader
+        self.size = len(reader) if max_trajectories is None else min(len(reader), max_trajectories)
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __getitem__(self, index: int) -> dict:
+        traj: Trajectory = self.reader[index]
+        return {
+            "position": torch.from_numpy(np.array(traj.position, dtype=np.float32)),
+            "particle_type": torch.from_numpy(np.array(traj.particle_type, dtype=np.int64)),
+            "index": index,
+        }
+
+
+def _single(items: list):
+    """Rollout loaders use batch size 1 and yield the trajectory itself."""
+    return items[0]
+
+
+class ParticleDataModule(L.LightningDataModule):
+    """Streams a gnsx-format dataset (see :mod:`gnsx.data.store`).
+
+    Args:
+        root: dataset folder with ``metadata.json`` and split folders.
+        history: velocity frames the model reads (1 simplified, 5 original).
+        batch_size: graphs per training batch (paper: 2).
+        num_workers: DataLoader worker processes for training frames.
+        val_max_trajectories: validation rollouts per validation run (None: all).
+        test_max_trajectories: test rollouts (None: all).
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        history: int = 1,
+        batch_size: int = 2,
+        num_workers: int = 0,
+        val_max_trajectories: int | None = None,
+        test_max_trajectories: int | None = None,
+    ):
+        super().__init__()
+        self.root = Path(root)
+        self.history = history
+        self.batch_size = batch_size
+        self.num_workers = num_workers
+        self.val_max_trajectories = val_max_trajectories
+        self.test_max_trajectories = test_max_trajectories
+        self._metadata: Metadata | None = None
+
+    @property
+    def metadata(self) -> Metadata:
+        """Dataset facts (bounds, radius, dim, statistics) that configure the model."""
+        if self._metadata is None:
+            self._metadata = load_metadata(self.root)
+        return self._metadata
+
+    def setup(self, stage: str | None = None) -> None:
+        if stage in (None, "fit"):
+            self.train_set = FrameDataset(SplitReader(self.root, "train"), self.history)
+            self.val_set = TrajectoryDataset(SplitReader(self.root, "valid"), self.val_max_trajectories)
+        if stage in (None, "test"):
+            self.test_set = TrajectoryDataset(SplitReader(self.root, "test"), self.test_max_trajectories)
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(
+            self.train_set,
+            batch_size=self.batch_size,
+            shuffle=True,
+            num_workers=self.num_workers,
+            collate_fn=Batch.from_data_list,
+            persistent_workers=self.num_workers > 0,
+            drop_last=True,
+        )
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(self.val_set, batch_size=1, collate_fn=_single)
+
+    def test_dataloader(self) -> DataLoader:
+        return DataLoader(self.test_set, batch_size=1, collate_fn=_single)

@@ -1,0 +1,106 @@
+"""Package a training run as shipped weights: ``python -m gnsx.pretrained RUN_DIR DEST_DIR``.
+
+DEST_DIR (e.g. ``pretrained/small``) receives what a user needs to trust and use the weights, all small enough
+for git: ``model.ckpt`` (weights and hyperparameters, no optimizer state: ~0.7 MB for the simplified model;
+``GNSSystem.load_from_checkpoint`` reads it), ``config.yaml`` (the run's composed Hydra config),
+``metrics.csv`` (the whole training curve, every restart concatenated), ``results.json`` (test metrics when the
+run wrote them) and ``training_curve.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import torch
+
+
+def strip_checkpoint(src: Path, dst: Path) -> dict:
+    """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header."""
+    state = torch.load(src, map_location="cpu", weights_only=False)
+    keep = {k: state[k] for k in ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
+            if k in state}  # fmt: skip
+    tmp = dst.with_suffix(".tmp")
+    torch.save(keep, tmp)
+    tmp.replace(dst)
+    return {"global_step": int(state.get("global_step", 0)), "source": str(src)}
+
+
+def merge_curves(run_dir: Path) -> list[dict]:
+    """Rows of every ``csv/version_*/metrics.csv`` of a run, in step order (resumed runs write several)."""
+    rows: list[dict] = []
+    for path in sorted((run_dir / "csv").glob("version_*/metrics.csv"), key=lambda p: int(p.parent.name[8:])):
+        with open(path) as f:
+            rows += list(csv.DictReader(f))
+    rows.sort(key=lambda r: int(r["step"]))
+    return rows
+
+
+def plot_curve(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
+    train = [(int(r["step"]), float(r["train/loss"])) for r in rows if r.get("train/loss")]
+    val = [(int(r["step"]), float(r["val/rollout_mse"])) for r in rows if r.get("val/rollout_mse")]
+    if train:
+        ax[0].semilogy(*zip(*train), lw=0.6)
+    ax[0].set(xlabel="step", ylabel="training loss (normalised acc. MSE)")
+    if val:
+        ax[1].semilogy(*zip(*val), "o-")
+    ax[1].set(xlabel="step", ylabel="validation rollout MSE")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def export(run_dir: Path, dest: Path, checkpoint: Path | None = None) -> dict:
+    """Write the shipped-weights folder for ``run_dir`` (its ``checkpoints/last.ckpt`` unless given)."""
+    checkpoint = checkpoint or run_dir / "checkpoints" / "last.ckpt"
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"{checkpoint}: no checkpoint to export")
+    dest.mkdir(parents=True, exist_ok=True)
+    info = strip_checkpoint(checkpoint, dest / "model.ckpt")
+    config = run_dir / ".hydra" / "config.yaml"
+    if config.is_file():
+        shutil.copy(config, dest / "config.yaml")
+    rows = merge_curves(run_dir)
+    if rows:
+        fields = sorted({k for r in rows for k in r})
+        with open(dest / "metrics.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(rows)
+        plot_curve(rows, dest / "training_curve.png")
+    results = run_dir / "results.json"
+    if results.is_file():
+        payload = json.loads(results.read_text())
+        payload.pop("pretrained", None)  # the previous shipped weights' numbers are not this model's
+        payload["checkpoint"] = info
+        (dest / "results.json").write_text(json.dumps(payload, indent=2))
+    return info
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gnsx.pretrained", description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("dest", type=Path)
+    parser.add_argument("--checkpoint", type=Path, default=None)
+    args = parser.parse_args(argv)
+    try:
+        info = export(args.run_dir, args.dest, args.checkpoint)
+    except FileNotFoundError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"exported step {info['global_step']} of {args.run_dir} to {args.dest}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,138 @@
+"""The Lightning system: trains a :class:`~gnsx.model.simulator.LearnedSimulator` (paper section 7).
+
+Kept apart from the model (Lightning's style guide): this file owns the loss, the optimizer and the LR/noise
+schedules, and validation rollouts; the ``nn.Module`` owns the physics. All constructor arguments are saved as
+hyperparameters, so ``GNSSystem.load_from_checkpoint(path)`` rebuilds the model with no config at hand.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning as L
+import torch
+
+from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.metrics import position_mse
+from gnsx.model.rollout import rollout
+from gnsx.model.simulator import LearnedSimulator
+from gnsx.schedule import learning_rate, noise_std
+
+
+class GNSSystem(L.LightningModule):
+    """Loss, optimisation and validation of a learned simulator.
+
+    Args:
+        model: LearnedSimulator's architecture arguments (latent_size, mp_steps, history, ...).
+        dim, bounds, radius, vel_mean, vel_std, acc_mean, acc_std: dataset facts from its metadata
+            (statistics are per-frame differences, data units).
+        noise_std: std of the training noise on the most recent velocity at the start of training.
+        noise_decay: factor applied to the noise std by the end of the LR decay (paper: 0.4).
+        lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
+        onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
+    """
+
+    def __init__(
+        self,
+        *,
+        model: dict[str, Any],
+        dim: int,
+        bounds: list[list[float]],
+        radius: float,
+        vel_mean: list[float],
+        vel_std: list[float],
+        acc_mean: list[float],
+        acc_std: list[float],
+        noise_std: float = 3.0e-4,
+        noise_decay: float = 0.4,
+        lr_init: float = 1.0e-4,
+        lr_final: float = 1.0e-6,
+        lr_decay_start: int = 1_000_000,
+        lr_decay_end: int = 1_500_000,
+        onestep_stride: int = 10,
+    ):
+        super().__init__()
+        self.save_hyperparameters()
+        self.simulator = LearnedSimulator(
+            dim=dim,
+            bounds=bounds,
+            radius=radius,
+            vel_mean=vel_mean,
+            vel_std=vel_std,
+            acc_mean=acc_mean,
+            acc_std=acc_std,
+            **model,
+        )
+
+    # -- schedules -------------------------------------------------------------------------------------------
+    def _lr_kwargs(self) -> dict:
+        h = self.hparams
+        return dict(lr_init=h.lr_init, lr_final=h.lr_final, decay_start=h.lr_decay_start, decay_end=h.lr_decay_end)
+
+    def current_noise_std(self) -> float:
+        """Noise std at the current optimizer step (decays with the LR; restored on resume with the step)."""
+        return noise_std(self.global_step, self.hparams.noise_std, self.hparams.noise_decay, **self._lr_kwargs())
+
+    def configure_optimizers(self):
+        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr_init)
+        kwargs = self._lr_kwargs()
+        scheduler = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, lambda step: learning_rate(step, **kwargs) / kwargs["lr_init"]
+        )
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    # -- training --------------------------------------------------------------------------------------------
+    def training_step(self, batch, batch_idx: int) -> torch.Tensor:
+        std = self.current_noise_std()
+        predicted, target = self.simulator.noisy_training_pair(
+            batch.position_sequence, batch.next_position, batch.particle_type, std, batch=batch.batch
+        )
+        # Squared error summed over dimensions, averaged over dynamic particles (paper eq. 7, DeepMind's loss):
+        # static particles are never moved by the model, so they are not in the loss.
+        dynamic = batch.particle_type != KINEMATIC_PARTICLE_ID
+        loss = ((predicted - target) ** 2).sum(dim=-1)[dynamic].mean()
+        size = int(batch.num_graphs)
+        self.log("train/loss", loss, prog_bar=True, batch_size=size)
+        self.log("train/noise_std", std, batch_size=size)
+        self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
+        return loss
+
+    # -- validation: full rollouts ----------------------------------------------------------------------------
+    def validation_step(self, trajectory: dict, batch_idx: int) -> None:
+        metrics = evaluate_trajectory(self.simulator, trajectory["position"], trajectory["particle_type"],
+                                      onestep_stride=self.hparams.onestep_stride)
+        for name, value in metrics.items():
+            self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse")
+
+
+@torch.inference_mode()
+def evaluate_trajectory(
+    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, onestep_stride: int = 10
+) -> dict[str, float]:
+    """Rollout and one-step position MSE of one trajectory.
+
+    Args:
+        position: ``[T, N, D]`` ground-truth positions.
+        particle_type: ``[N]``.
+    Returns:
+        ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout starting
+        from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single steps from
+        ground-truth inputs, on every ``onestep_stride``-th frame (batched into one graph).
+    """
+    frames = simulator.input_frames
+    position = position.to(simulator.acc_std.device)
+    particle_type = particle_type.to(position.device)
+    dynamic = particle_type != KINEMATIC_PARTICLE_ID
+    num_steps = position.shape[0] - frames
+    predicted = rollout(simulator, position[:frames].transpose(0, 1), particle_type, num_steps)
+    rollout_error = position_mse(predicted, position[frames:], dynamic)
+
+    # One-step: inputs p[k-H..k] for k = H, H+stride, ...; all of them as one batch of disjoint graphs.
+    starts = torch.arange(0, num_steps, onestep_stride, device=position.device)
+    windows = torch.stack([position[s : s + frames] for s in starts.tolist()])  # [K, H+1, N, D]
+    k, _, n, d = windows.shape
+    sequence = windows.permute(0, 2, 1, 3).reshape(k * n, frames, d)
+    graph = torch.arange(k, device=position.device).repeat_interleave(n)
+    next_position = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph).reshape(k, n, d)
+    onestep_error = position_mse(next_position, position[starts + frames], dynamic)
+    return {"rollout_mse": rollout_error, "onestep_mse": onestep_error}

@@ -1,0 +1,130 @@
+"""Hydra configs compose, the Lightning system trains, checkpoints, resumes and evaluates."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from gnsx.data.metadata import Metadata
+from gnsx.pipeline import architecture, build_system
+from gnsx.system import GNSSystem
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+
+#: A model small enough that a few training steps take a fraction of a second.
+TINY = ["model.latent_size=8", "model.mlp_hidden_size=8", "model.mp_steps=2"]
+
+
+def _compose(overrides: list[str]):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+class _FakeDataModule:
+    metadata = Metadata(
+        bounds=[[0.1, 0.9], [0.1, 0.9]],
+        sequence_length=10,
+        default_connectivity_radius=0.05,
+        dim=2,
+        dt=0.0025,
+        vel_mean=[0.0, -1e-4],
+        vel_std=[2e-3, 2e-3],
+        acc_mean=[0.0, -1e-5],
+        acc_std=[2e-4, 2e-4],
+    )
+
+
+@pytest.mark.parametrize("model", ["simplified", "original"])
+@pytest.mark.parametrize("group", ["trainer=cpu", "trainer=gpu", "trainer=ddp", "logger=none", "logger=csv",
+                                   "data=waterramps", "train=paper"])
+def test_every_config_composes_and_instantiates(model, group):
+    cfg = _compose([f"model={model}", group])
+    system = build_system(cfg, _FakeDataModule())
+    sim = system.simulator
+    assert sim.input_frames == cfg.model.history + 1
+    n = 30
+    sequence = 0.3 + 0.4 * torch.rand(n, sim.input_frames, 2)
+    particle_type = torch.full((n,), 5)
+    assert sim(sequence, particle_type).shape == (n, 2)
+
+
+def test_model_configs_match_the_paper_table():
+    simplified = architecture(_compose(["model=simplified"]).model)
+    original = architecture(_compose(["model=original"]).model)
+    assert (simplified["latent_size"], simplified["mp_steps"], simplified["history"]) == (64, 5, 1)
+    assert (original["latent_size"], original["mp_steps"], original["history"]) == (128, 10, 5)
+    assert simplified["type_encoding"] == "scalar" and original["type_encoding"] == "embedding"
+    assert simplified["wall_clip"] == (0.0, 1.0) and original["wall_clip"] == (-1.0, 1.0)
+    assert not simplified["edge_residual"] and original["edge_residual"]
+
+
+def _run_train(tmp_path: Path, dataset: Path, name: str, extra: list[str]) -> Path:
+    run_dir = tmp_path / name
+    cmd = [
+        sys.executable, str(ROOT / "train.py"), f"data.root={dataset}", "data.generate_if_missing=false",
+        f"hydra.run.dir={run_dir}", "evaluate.pretrained=null", *TINY, *extra,
+    ]  # fmt: skip
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return run_dir
+
+
+def _logged_steps(run_dir: Path) -> list[int]:
+    steps = []
+    for path in (run_dir / "csv").glob("version_*/metrics.csv"):
+        with open(path) as f:
+            steps += [int(row["step"]) for row in csv.DictReader(f) if row.get("train/loss")]
+    return steps
+
+
+def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
+    common = ["logger=csv", "train.log_every_n_steps=1", "train.checkpoint_every_n_steps=3",
+              "train.permanent_every_n_steps=6", "train.val_every_n_steps=3", "train.max_time=null"]  # fmt: skip
+    first = _run_train(tmp_path, tiny_dataset, "first", [*common, "train.max_steps=6", "evaluate.render=true"])
+    ckpts = sorted(p.name for p in (first / "checkpoints").glob("*.ckpt"))
+    assert "last.ckpt" in ckpts and "step00000006.ckpt" in ckpts
+    assert (first / "checkpoints" / "permanent" / "step00000006.ckpt").exists()
+    results = json.loads((first / "results.json").read_text())
+    assert results["test"]["trajectories"] >= 1 and results["test"]["rollout_mse"] > 0
+    assert (first / "test_rollout.gif").stat().st_size > 0
+    state = torch.load(first / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert state["global_step"] == 6
+
+    # Resume: one override; the step, optimizer and schedule come back from the checkpoint.
+    second = _run_train(
+        tmp_path, tiny_dataset, "second", [*common, "train.max_steps=9", f"train.ckpt_path={first}",
+                                           "evaluate.enabled=false"]  # fmt: skip
+    )
+    steps = _logged_steps(second)
+    assert steps and min(steps) >= 6 and max(steps) <= 9
+    resumed = torch.load(second / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert resumed["global_step"] == 9
+    system = GNSSystem.load_from_checkpoint(second / "checkpoints" / "last.ckpt", map_location="cpu")
+    assert system.hparams.model["latent_size"] == 8
+    # The LR schedule continued: lr at step 9 of a decay over max_steps=9 is lr_final.
+    assert resumed["lr_schedulers"][0]["last_epoch"] == 9
+
+
+def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
+    run = _run_train(
+        tmp_path, tiny_dataset, "wb", ["logger=wandb", "train.max_steps=2", "train.val_every_n_steps=2",
+                                       "train.max_time=null", "evaluate.render=false"]  # fmt: skip
+    )
+    offline_runs = list((run / "wandb").glob("offline-run-*"))
+    assert len(offline_runs) == 1
+    assert list(offline_runs[0].glob("*.wandb"))
+
+
+def test_config_has_no_unresolved_interpolations():
+    cfg = OmegaConf.to_container(_compose([]), resolve=True)
+    assert cfg["train"]["lr_decay_end"] == cfg["train"]["max_steps"]
+    assert cfg["data"]["root"] == "data/small"
