@@ -102,7 +102,8 @@ class GNSSystem(L.LightningModule):
         metrics = evaluate_trajectory(self.simulator, trajectory["position"], trajectory["particle_type"],
                                       onestep_stride=self.hparams.onestep_stride)
         for name, value in metrics.items():
-            self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse")
+            # sync_dist: under DDP each rank rolls out its share of the trajectories; log their mean.
+            self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse", sync_dist=True)
 
 
 @torch.inference_mode()

@@ -128,3 +128,15 @@ def test_config_has_no_unresolved_interpolations():
     cfg = OmegaConf.to_container(_compose([]), resolve=True)
     assert cfg["train"]["lr_decay_end"] == cfg["train"]["max_steps"]
     assert cfg["data"]["root"] == "data/small"
+
+
+def test_ddp_with_two_cpu_processes_over_gloo(tmp_path, tiny_dataset):
+    run = _run_train(
+        tmp_path, tiny_dataset, "ddp", ["trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", "logger=csv",
+                                        "train.max_steps=4", "train.val_every_n_steps=4", "train.max_time=null",
+                                        "evaluate.enabled=false"]  # fmt: skip
+    )
+    # Lightning re-launched the script for rank 1 (it logs to its own file) and rank 0 saved the checkpoint.
+    assert (run / "train_ddp_process_1.log").exists()
+    state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert state["global_step"] == 4
