@@ -1,0 +1,167 @@
+"""Dataset presets: everything that fixes a generated dataset (solver, scene ranges, sizes), by name.
+
+Two presets ship:
+
+* ``waterramps``: DeepMind's WaterRamps sizes (1000/100/100 trajectories x 601 frames, ~1.1k-2.3k particles,
+  connectivity radius 0.015) on a 64^2 grid. Measured: ~3.8 s of CPU per trajectory, so ~40 minutes on 2
+  idle cores.
+* ``small``: the CPU recipe of DESIGN.md section 6 (32^2 grid, spacing 0.5 dx, 250 frames, 20/2/4
+  trajectories, radius 0.035): ~1 s of CPU per trajectory, the dataset in ~15-20 s on 2 idle cores.
+
+Change any field with ``dataclasses.replace`` or ``get_preset(name, **overrides)``, e.g.
+``get_preset("small", trajectories={"train": 100, "valid": 5, "test": 5})``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from gnsx.constants import SPLITS
+from gnsx.mpm.solver import SolverSettings
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A dataset recipe. Lengths in metres, speeds in m/s, angles in radians.
+
+    Attributes:
+        name: the preset's name (written to the metadata).
+        grid: solver grid resolution, nodes per metre (``dx ~ 1 / grid``; see :class:`SolverSettings`).
+        substeps: solver substeps per output frame.
+        particle_spacing: initial water particle spacing; particle volume is its square.
+        ramp_spacing: distance between the static particles written along each ramp.
+        num_frames: frames per trajectory, the initial state included (``sequence_length`` is one less).
+        trajectories: ``{split: count}`` for ``train``, ``valid``, ``test``.
+        block_width_range, block_height_range: ``(min, max)`` water block size.
+        speed_range: ``(min, max)`` initial speed of the block (direction uniform).
+        num_ramps_range: ``(min, max)`` ramps per scene, both included.
+        ramp_length_range: ``(min, max)`` ramp length.
+        ramp_max_angle: non-vertical ramps get an angle uniform in ``[-ramp_max_angle, ramp_max_angle]``.
+        vertical_ramp_probability: chance that a ramp is vertical.
+        default_connectivity_radius: the neighbour radius written to the metadata.
+        wall_margin: blocks and ramps keep at least this distance from the walls.
+        jitter: water particles move up to ``jitter * particle_spacing`` per axis off their lattice point.
+        collider_band: ramp collider band in cells (see :class:`SolverSettings`).
+        stiffness: bulk modulus E of the water, Pa.
+        frame_dt: seconds between frames.
+        gravity: m/s^2, along -y.
+        bounds: ``(lo, hi)`` walls on both axes.
+        dtype: solver float type, ``"float32"`` or ``"float64"``.
+    """
+
+    name: str
+    grid: int
+    substeps: int
+    particle_spacing: float
+    num_frames: int
+    trajectories: dict[str, int]
+    block_width_range: tuple[float, float]
+    block_height_range: tuple[float, float]
+    default_connectivity_radius: float
+    speed_range: tuple[float, float] = (0.5, 2.0)
+    num_ramps_range: tuple[int, int] = (1, 4)
+    ramp_length_range: tuple[float, float] = (0.1, 0.6)
+    ramp_max_angle: float = 0.3
+    vertical_ramp_probability: float = 0.15
+    ramp_spacing: float = 0.01
+    wall_margin: float = 0.02
+    jitter: float = 0.35
+    collider_band: float = 1.0
+    stiffness: float = 400.0
+    frame_dt: float = 0.0025
+    gravity: float = 9.8
+    bounds: tuple[float, float] = (0.1, 0.9)
+    dtype: str = "float32"
+
+    def __post_init__(self):
+        unknown = set(self.trajectories) - set(SPLITS)
+        if unknown:
+            raise ValueError(f"preset {self.name!r}: trajectories has unknown split(s) {sorted(unknown)}")
+        if any(int(n) < 0 for n in self.trajectories.values()):
+            raise ValueError(f"preset {self.name!r}: trajectory counts must be >= 0, got {self.trajectories}")
+        if self.num_frames < 3:
+            raise ValueError(f"preset {self.name!r}: num_frames must be >= 3 (acceleration needs 3 frames)")
+        for key in (
+            "block_width_range",
+            "block_height_range",
+            "speed_range",
+            "num_ramps_range",
+            "ramp_length_range",
+        ):
+            lo, hi = getattr(self, key)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"preset {self.name!r}: {key} must be (min, max) with 0 <= min <= max")
+        self.solver_settings()  # validates the solver fields
+
+    def solver_settings(self) -> SolverSettings:
+        """The solver settings this preset implies."""
+        return SolverSettings(
+            grid=self.grid,
+            substeps=self.substeps,
+            frame_dt=self.frame_dt,
+            stiffness=self.stiffness,
+            gravity=self.gravity,
+            wall_lo=self.bounds[0],
+            wall_hi=self.bounds[1],
+            collider_band=self.collider_band,
+            dtype=self.dtype,
+        )
+
+    @property
+    def ramp_clearance(self) -> float:
+        """Closest a water particle may start to a ramp, m: the collider band plus half a particle spacing."""
+        return self.collider_band * self.solver_settings().dx + 0.5 * self.particle_spacing
+
+    @property
+    def num_trajectories(self) -> int:
+        return sum(self.trajectories.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready values (tuples as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+
+PRESETS: dict[str, Preset] = {
+    "waterramps": Preset(
+        name="waterramps",
+        grid=64,
+        substeps=10,
+        particle_spacing=0.009,  # WaterRamps' ~1.5k water particles in a 0.42 x 0.32 block
+        num_frames=601,
+        trajectories={"train": 1000, "valid": 100, "test": 100},
+        block_width_range=(0.32, 0.48),
+        block_height_range=(0.26, 0.36),
+        default_connectivity_radius=0.015,
+    ),
+    "small": Preset(
+        name="small",
+        grid=32,
+        substeps=10,
+        particle_spacing=0.015625,  # 0.5 dx: 4 particles per cell, as mpm88
+        num_frames=250,
+        trajectories={"train": 20, "valid": 2, "test": 4},
+        block_width_range=(0.15, 0.45),
+        block_height_range=(0.15, 0.35),
+        default_connectivity_radius=0.035,
+    ),
+}
+
+
+def get_preset(name: str, **overrides: Any) -> Preset:
+    """The preset called ``name``, with any fields replaced by ``overrides``.
+
+    Raises:
+        KeyError: unknown preset name (the message lists the known ones).
+        ValueError: an override names no field of :class:`Preset`, or makes the preset invalid.
+    """
+    if name not in PRESETS:
+        raise KeyError(f"unknown preset {name!r}; known presets: {', '.join(sorted(PRESETS))}")
+    fields = {f.name for f in dataclasses.fields(Preset)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(f"preset {name!r}: unknown field(s) {unknown}; fields are {sorted(fields)}")
+    # A fresh trajectories dict, so a caller editing it cannot change the registry.
+    overrides.setdefault("trajectories", dict(PRESETS[name].trajectories))
+    return dataclasses.replace(PRESETS[name], **overrides)

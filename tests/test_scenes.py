@@ -1,0 +1,244 @@
+"""Scenes (data, sampler, particles) and presets."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial import cKDTree
+
+from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.errors import DataError
+from gnsx.mpm.presets import PRESETS, Preset, get_preset
+from gnsx.mpm.scenes import (
+    Scene,
+    WaterBlock,
+    ramp_particles,
+    sample_scene,
+    scene_particles,
+    segment_distance,
+    segment_rect_distance,
+)
+
+SCENE = Scene(
+    blocks=[WaterBlock((0.2, 0.5), (0.6, 0.8), (0.7, -0.4))],
+    ramps=[((0.15, 0.4), (0.6, 0.33)), ((0.7, 0.12), (0.7, 0.4))],
+)
+
+
+# ---------------------------------------------------------------------------------------------- Scene data
+
+
+def test_scene_dict_round_trip_through_yaml():
+    d = SCENE.to_dict()
+    text = yaml.safe_dump(d)
+    assert "!!python" not in text  # plain lists and floats only
+    back = Scene.from_dict(yaml.safe_load(text))
+    assert back == SCENE
+    assert back.to_dict() == d
+    np.testing.assert_array_equal(back.ramp_array(), np.array(SCENE.ramps))
+
+
+def test_scene_from_dict_defaults_velocity_and_accepts_no_ramps():
+    scene = Scene.from_dict({"blocks": [{"lower": [0.2, 0.2], "upper": [0.4, 0.3]}]})
+    assert scene.blocks[0].velocity == (0.0, 0.0) and scene.ramps == []
+    assert scene.ramp_array().shape == (0, 2, 2)
+
+
+@pytest.mark.parametrize(
+    "bad, where",
+    [
+        ({"blocks": [{"lower": [0.2, 0.2]}]}, r"scene\.blocks\[0\]"),
+        ({"blocks": [{"lower": [0.2], "upper": [0.4, 0.3]}]}, r"scene\.blocks\[0\]\.lower"),
+        ({"blocks": [{"lower": [0.5, 0.2], "upper": [0.4, 0.3]}]}, r"scene\.blocks\[0\]: lower"),
+        ({"blocks": [{"lower": [0.2, "a"], "upper": [0.4, 0.3]}]}, r"scene\.blocks\[0\]\.lower"),
+        ({"ramps": [[[0.2, 0.2], [0.2, 0.2]]]}, r"scene\.ramps\[0\]: .*zero-length"),
+        ({"ramps": [[[0.2, 0.2]]]}, r"scene\.ramps\[0\]"),
+        ({"ramps": [[[0.2, 0.2], [0.3, math.nan]]]}, r"scene\.ramps\[0\]\[1\]"),
+        ({"block": []}, r"scene: unknown key"),
+    ],
+)
+def test_scene_from_dict_names_the_bad_field(bad, where):
+    with pytest.raises(DataError, match=where):
+        Scene.from_dict(bad)
+
+
+# ---------------------------------------------------------------------------------------------- particles
+
+
+def test_scene_particles_layout_and_determinism():
+    spacing = 0.01
+    position, particle_type = scene_particles(SCENE, spacing, np.random.default_rng(0))
+    assert position.dtype == np.float32 and particle_type.dtype == np.int64
+    water = particle_type == WATER_PARTICLE_ID
+    # Water first, then ramps; one water particle per spacing^2 of block area.
+    assert water[: water.sum()].all() and (particle_type[water.sum() :] == KINEMATIC_PARTICLE_ID).all()
+    assert water.sum() == 40 * 30
+    lower, upper = np.array(SCENE.blocks[0].lower), np.array(SCENE.blocks[0].upper)
+    assert (position[water] > lower).all() and (position[water] < upper).all()
+    same, _ = scene_particles(SCENE, spacing, np.random.default_rng(0))
+    other, _ = scene_particles(SCENE, spacing, np.random.default_rng(1))
+    np.testing.assert_array_equal(position, same)
+    assert not np.array_equal(position, other)
+
+
+def test_water_is_irregular_but_never_overlapping():
+    spacing, jitter = 0.01, 0.35
+    position, particle_type = scene_particles(SCENE, spacing, np.random.default_rng(0), jitter=jitter)
+    water = position[particle_type == WATER_PARTICLE_ID].astype(np.float64)
+    nearest = cKDTree(water).query(water, k=2)[0][:, 1]
+    assert nearest.min() >= (1 - 2 * jitter) * spacing - 1e-6
+    # Not a lattice: nearest-neighbour distances spread widely, and coordinates do not repeat.
+    assert nearest.std() > 0.05 * spacing
+    assert len(np.unique(np.round(water[:, 0], 6))) > 0.9 * len(water)
+
+
+def test_water_clears_the_ramp_bands():
+    scene = Scene([WaterBlock((0.2, 0.2), (0.6, 0.6))], [((0.1, 0.4), (0.5, 0.4))])  # the ramp cuts the block
+    position, particle_type = scene_particles(scene, 0.01, np.random.default_rng(0), clearance=0.03)
+    water = position[particle_type == WATER_PARTICLE_ID]
+    assert segment_distance(water.astype(np.float64), scene.ramp_array()).min() >= 0.03
+    assert len(water) < 40 * 40 - 0.06 / 0.01 * 30  # a 6 cm band over 30 columns is gone
+
+
+def test_ramp_particles_line_each_ramp_end_to_end():
+    points = ramp_particles(SCENE, ramp_spacing=0.01)
+    for p0, p1 in SCENE.ramps:
+        d = segment_distance(points, np.array([[p0, p1]]))[:, 0]
+        on = points[d < 1e-9]
+        steps = np.linalg.norm(np.diff(on, axis=0), axis=1)
+        assert np.allclose(on[0], p0) and np.allclose(on[-1], p1)
+        assert steps.max() <= 0.01 + 1e-9 and steps.min() > 0.009
+
+
+# ---------------------------------------------------------------------------------------------- sampler
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_sampled_scenes_respect_the_preset(name):
+    preset = get_preset(name)
+    lo, hi = preset.bounds[0] + preset.wall_margin, preset.bounds[1] - preset.wall_margin
+    ramp_counts, vertical, speeds = [], 0, []
+    for seed in range(150):
+        scene = sample_scene(np.random.default_rng(seed), preset)
+        (block,) = scene.blocks
+        w, h = block.size
+        assert preset.block_width_range[0] <= w <= preset.block_width_range[1]
+        assert preset.block_height_range[0] <= h <= preset.block_height_range[1]
+        assert lo <= min(block.lower) and max(block.upper) <= hi
+        speeds.append(math.hypot(*block.velocity))
+        assert preset.num_ramps_range[0] <= len(scene.ramps) <= preset.num_ramps_range[1]
+        ramp_counts.append(len(scene.ramps))
+        for p0, p1 in scene.ramps:
+            p0, p1 = np.array(p0), np.array(p1)
+            length = np.linalg.norm(p1 - p0)
+            assert preset.ramp_length_range[0] - 1e-9 <= length <= preset.ramp_length_range[1] + 1e-9
+            assert lo - 1e-9 <= min(p0.min(), p1.min()) and max(p0.max(), p1.max()) <= hi + 1e-9
+            angle = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
+            is_vertical = math.isclose(abs(angle), math.pi / 2, abs_tol=1e-9)
+            vertical += is_vertical
+            assert is_vertical or abs(angle) <= preset.ramp_max_angle + 1e-9
+            gap = segment_rect_distance(p0, p1, np.array(block.lower), np.array(block.upper))
+            assert gap >= preset.ramp_clearance
+    speeds = np.array(speeds)
+    assert (speeds >= preset.speed_range[0]).all() and (speeds <= preset.speed_range[1]).all()
+    # The ranges are used, not just respected.
+    assert set(ramp_counts) == set(range(preset.num_ramps_range[0], preset.num_ramps_range[1] + 1))
+    assert vertical > 0
+
+
+def test_sampler_is_deterministic_per_seed():
+    preset = get_preset("small")
+    a = sample_scene(np.random.default_rng(42), preset)
+    assert a == sample_scene(np.random.default_rng(42), preset)
+    assert a != sample_scene(np.random.default_rng(43), preset)
+
+
+def test_sampled_directions_cover_the_circle():
+    preset = get_preset("small")
+    angles = [
+        math.atan2(*sample_scene(np.random.default_rng(s), preset).blocks[0].velocity[::-1])
+        for s in range(200)
+    ]
+    counts = np.histogram(angles, bins=4, range=(-math.pi, math.pi))[0]
+    assert counts.min() > 25  # every quadrant, roughly uniformly
+
+
+def test_waterramps_particle_counts_match_the_real_data():
+    """WaterRamps holds ~1.1k-2.3k particles per trajectory; the preset must land in that range."""
+    preset = get_preset("waterramps")
+    counts = []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        scene = sample_scene(rng, preset)
+        _, particle_type = scene_particles(
+            scene,
+            preset.particle_spacing,
+            rng,
+            ramp_spacing=preset.ramp_spacing,
+            clearance=preset.ramp_clearance,
+        )
+        counts.append(len(particle_type))
+    assert 1000 <= min(counts) and max(counts) <= 2400 and np.mean(counts) > 1400
+
+
+def test_infeasible_ranges_are_reported():
+    preset = get_preset("small", block_width_range=(0.9, 0.95))
+    with pytest.raises(ValueError, match="does not fit"):
+        sample_scene(np.random.default_rng(0), preset)
+
+
+def test_segment_rectangle_distance():
+    lower, upper = np.array([0.2, 0.2]), np.array([0.4, 0.4])
+    assert segment_rect_distance(np.array([0.1, 0.3]), np.array([0.5, 0.3]), lower, upper) == 0  # crosses
+    assert segment_rect_distance(np.array([0.25, 0.25]), np.array([0.3, 0.3]), lower, upper) == 0  # inside
+    assert segment_rect_distance(np.array([0.1, 0.5]), np.array([0.5, 0.5]), lower, upper) == pytest.approx(
+        0.1
+    )
+    # Diagonal past a corner: the corner (0.4, 0.4) is 0.2 / sqrt(2) from the line x + y = 1.
+    d = segment_rect_distance(np.array([0.3, 0.7]), np.array([0.7, 0.3]), lower, upper)
+    assert d == pytest.approx(0.2 / math.sqrt(2), rel=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------- presets
+
+
+def test_presets_follow_their_recipes():
+    small, full = get_preset("small"), get_preset("waterramps")
+    assert (small.grid, small.substeps, small.num_frames) == (32, 10, 250)
+    assert small.trajectories == {"train": 20, "valid": 2, "test": 4}
+    assert small.particle_spacing == pytest.approx(0.5 / 32, rel=0.01)
+    assert small.default_connectivity_radius == 0.035
+    assert (small.block_width_range, small.block_height_range) == ((0.15, 0.45), (0.15, 0.35))
+    assert small.num_ramps_range == (1, 4)
+    assert (full.grid, full.num_frames, full.default_connectivity_radius) == (64, 601, 0.015)
+    assert full.trajectories == {"train": 1000, "valid": 100, "test": 100}
+    # Water may not start where the grid colliders act.
+    for preset in (small, full):
+        settings = preset.solver_settings()
+        assert preset.ramp_clearance > settings.collider_band * settings.dx
+
+
+def test_get_preset_errors_and_overrides():
+    with pytest.raises(KeyError, match="small.*waterramps"):
+        get_preset("tiny")
+    with pytest.raises(ValueError, match="unknown field"):
+        get_preset("small", frames=3)
+    with pytest.raises(ValueError, match="unknown split"):
+        get_preset("small", trajectories={"training": 3})
+    custom = get_preset("small", num_frames=50, trajectories={"train": 3, "valid": 1, "test": 1})
+    assert custom.num_frames == 50 and custom.num_trajectories == 5
+    assert get_preset("small").num_frames == 250  # the registry is untouched
+    get_preset("small").trajectories["train"] = 999  # a caller's copy...
+    assert get_preset("small").trajectories["train"] == 20  # ...is not the registry's
+    replaced = dataclasses.replace(get_preset("small"), substeps=20)
+    assert isinstance(replaced, Preset) and replaced.solver_settings().substeps == 20
+
+
+def test_preset_to_dict_is_json():
+    d = json.loads(json.dumps(get_preset("waterramps").to_dict()))
+    assert d["name"] == "waterramps" and d["block_width_range"] == [0.32, 0.48]
