@@ -1,7 +1,8 @@
 """LightningDataModule: random training frames and whole validation/test trajectories from a gnsx dataset.
 
 Training samples are single frames drawn uniformly over all trajectories of the train split (DeepMind's
-scheme): frame ``k`` of trajectory ``t`` gives the model the positions ``p[k-H..k]`` (``H`` = velocity history)
+scheme): frame ``k`` of trajectory ``t`` gives the model the positions ``p[k-H..k]``
+(``H`` = velocity history)
 and the target ``p[k+1]``. Velocities and accelerations are derived on the fly from these ``H + 2`` contiguous
 frames, so the dataset on disk holds positions only (one memory-mapped read per sample).
 """
@@ -55,7 +56,7 @@ class FrameDataset(Dataset):
 
 
 class TrajectoryDataset(Dataset):
-    """Whole trajectories of a split (for rollouts), as tensors ``position [T, N, D]``, ``particle_type [N]``."""
+    """Whole trajectories of a split (for rollouts): ``position [T, N, D]``, ``particle_type [N]`` tensors."""
 
     def __init__(self, reader: SplitReader, max_trajectories: int | None = None):
         self.reader = reader

@@ -3,8 +3,8 @@
 DEST_DIR (e.g. ``pretrained/small``) receives what a user needs to trust and use the weights, all small enough
 for git: ``model.ckpt`` (weights and hyperparameters, no optimizer state: ~0.7 MB for the simplified model;
 ``GNSSystem.load_from_checkpoint`` reads it), ``config.yaml`` (the run's composed Hydra config),
-``metrics.csv`` (the whole training curve, every restart concatenated), ``results.json`` (test metrics when the
-run wrote them) and ``training_curve.png``.
+``metrics.csv`` (the whole training curve, every restart concatenated), ``results.json`` (test metrics when
+the run wrote them) and ``training_curve.png``.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import torch
 def strip_checkpoint(src: Path, dst: Path) -> dict:
     """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header."""
     state = torch.load(src, map_location="cpu", weights_only=False)
-    keep = {k: state[k] for k in ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
-            if k in state}  # fmt: skip
+    wanted = ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
+    keep = {k: state[k] for k in wanted if k in state}
     tmp = dst.with_suffix(".tmp")
     torch.save(keep, tmp)
     tmp.replace(dst)

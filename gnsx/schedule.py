@@ -21,9 +21,13 @@ def learning_rate(step: int, lr_init: float, lr_final: float, decay_start: int, 
     return lr_init * (lr_final / lr_init) ** fraction
 
 
-def noise_std(step: int, base_std: float, decay: float, lr_init: float, lr_final: float, **lr_kwargs) -> float:
-    """Training-noise std that decays with the learning rate: ``base_std`` at ``lr_init``, ``decay * base_std`` at
-    ``lr_final``, log-linear in between (the paper's noise decayed x0.4 as the LR decays 100x).
+def noise_std(
+    step: int, base_std: float, decay: float, lr_init: float, lr_final: float, **lr_kwargs
+) -> float:
+    """Training-noise std that decays with the learning rate.
+
+    ``base_std`` at ``lr_init``, ``decay * base_std`` at ``lr_final``, log-linear in between (the paper's
+    noise decayed x0.4 as the LR decays 100x).
 
     ``lr_kwargs`` are ``decay_start`` and ``decay_end`` of :func:`learning_rate`.
     """

@@ -67,11 +67,15 @@ class GNSSystem(L.LightningModule):
     # -- schedules -------------------------------------------------------------------------------------------
     def _lr_kwargs(self) -> dict:
         h = self.hparams
-        return dict(lr_init=h.lr_init, lr_final=h.lr_final, decay_start=h.lr_decay_start, decay_end=h.lr_decay_end)
+        return dict(
+            lr_init=h.lr_init, lr_final=h.lr_final, decay_start=h.lr_decay_start, decay_end=h.lr_decay_end
+        )
 
     def current_noise_std(self) -> float:
         """Noise std at the current optimizer step (decays with the LR; restored on resume with the step)."""
-        return noise_std(self.global_step, self.hparams.noise_std, self.hparams.noise_decay, **self._lr_kwargs())
+        return noise_std(
+            self.global_step, self.hparams.noise_std, self.hparams.noise_decay, **self._lr_kwargs()
+        )
 
     def configure_optimizers(self):
         optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr_init)
@@ -87,7 +91,7 @@ class GNSSystem(L.LightningModule):
         predicted, target = self.simulator.noisy_training_pair(
             batch.position_sequence, batch.next_position, batch.particle_type, std, batch=batch.batch
         )
-        # Squared error summed over dimensions, averaged over dynamic particles (paper eq. 7, DeepMind's loss):
+        # Squared error summed over dimensions, averaged over dynamic particles (eq. 7, DeepMind's loss):
         # static particles are never moved by the model, so they are not in the loss.
         dynamic = batch.particle_type != KINEMATIC_PARTICLE_ID
         loss = ((predicted - target) ** 2).sum(dim=-1)[dynamic].mean()
@@ -97,10 +101,14 @@ class GNSSystem(L.LightningModule):
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
         return loss
 
-    # -- validation: full rollouts ----------------------------------------------------------------------------
+    # -- validation: full rollouts ---------------------------------------------------------------------
     def validation_step(self, trajectory: dict, batch_idx: int) -> None:
-        metrics = evaluate_trajectory(self.simulator, trajectory["position"], trajectory["particle_type"],
-                                      onestep_stride=self.hparams.onestep_stride)
+        metrics = evaluate_trajectory(
+            self.simulator,
+            trajectory["position"],
+            trajectory["particle_type"],
+            onestep_stride=self.hparams.onestep_stride,
+        )
         for name, value in metrics.items():
             # sync_dist: under DDP each rank rolls out its share of the trajectories; log their mean.
             self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse", sync_dist=True)
@@ -116,9 +124,9 @@ def evaluate_trajectory(
         position: ``[T, N, D]`` ground-truth positions.
         particle_type: ``[N]``.
     Returns:
-        ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout starting
-        from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single steps from
-        ground-truth inputs, on every ``onestep_stride``-th frame (batched into one graph).
+        ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
+        starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
+        steps from ground-truth inputs, on every ``onestep_stride``-th frame (batched into one graph).
     """
     frames = simulator.input_frames
     position = position.to(simulator.acc_std.device)
@@ -134,6 +142,8 @@ def evaluate_trajectory(
     k, _, n, d = windows.shape
     sequence = windows.permute(0, 2, 1, 3).reshape(k * n, frames, d)
     graph = torch.arange(k, device=position.device).repeat_interleave(n)
-    next_position = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph).reshape(k, n, d)
+    next_position = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph).reshape(
+        k, n, d
+    )
     onestep_error = position_mse(next_position, position[starts + frames], dynamic)
     return {"rollout_mse": rollout_error, "onestep_mse": onestep_error}

@@ -44,8 +44,18 @@ class _FakeDataModule:
 
 
 @pytest.mark.parametrize("model", ["simplified", "original"])
-@pytest.mark.parametrize("group", ["trainer=cpu", "trainer=gpu", "trainer=ddp", "logger=none", "logger=csv",
-                                   "data=waterramps", "train=paper"])
+@pytest.mark.parametrize(
+    "group",
+    [
+        "trainer=cpu",
+        "trainer=gpu",
+        "trainer=ddp",
+        "logger=none",
+        "logger=csv",
+        "data=waterramps",
+        "train=paper",
+    ],
+)
 def test_every_config_composes_and_instantiates(model, group):
     cfg = _compose([f"model={model}", group])
     system = build_system(cfg, _FakeDataModule())
@@ -88,8 +98,11 @@ def _logged_steps(run_dir: Path) -> list[int]:
 
 def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
     common = ["logger=csv", "train.log_every_n_steps=1", "train.checkpoint_every_n_steps=3",
-              "train.permanent_every_n_steps=6", "train.val_every_n_steps=3", "train.max_time=null"]  # fmt: skip
-    first = _run_train(tmp_path, tiny_dataset, "first", [*common, "train.max_steps=6", "evaluate.render=true"])
+              "train.permanent_every_n_steps=6", "train.val_every_n_steps=3",
+              "train.max_time=null"]  # fmt: skip
+    first = _run_train(
+        tmp_path, tiny_dataset, "first", [*common, "train.max_steps=6", "evaluate.render=true"]
+    )
     ckpts = sorted(p.name for p in (first / "checkpoints").glob("*.ckpt"))
     assert "last.ckpt" in ckpts and "step00000006.ckpt" in ckpts
     assert (first / "checkpoints" / "permanent" / "step00000006.ckpt").exists()
@@ -101,8 +114,10 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
 
     # Resume: one override; the step, optimizer and schedule come back from the checkpoint.
     second = _run_train(
-        tmp_path, tiny_dataset, "second", [*common, "train.max_steps=9", f"train.ckpt_path={first}",
-                                           "evaluate.enabled=false"]  # fmt: skip
+        tmp_path,
+        tiny_dataset,
+        "second",
+        [*common, "train.max_steps=9", f"train.ckpt_path={first}", "evaluate.enabled=false"],  # fmt: skip
     )
     steps = _logged_steps(second)
     assert steps and min(steps) >= 6 and max(steps) <= 9
@@ -116,8 +131,16 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
 
 def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
     run = _run_train(
-        tmp_path, tiny_dataset, "wb", ["logger=wandb", "train.max_steps=2", "train.val_every_n_steps=2",
-                                       "train.max_time=null", "evaluate.render=false"]  # fmt: skip
+        tmp_path,
+        tiny_dataset,
+        "wb",
+        [
+            "logger=wandb",
+            "train.max_steps=2",
+            "train.val_every_n_steps=2",
+            "train.max_time=null",
+            "evaluate.render=false",
+        ],  # fmt: skip
     )
     offline_runs = list((run / "wandb").glob("offline-run-*"))
     assert len(offline_runs) == 1
@@ -132,9 +155,19 @@ def test_config_has_no_unresolved_interpolations():
 
 def test_ddp_with_two_cpu_processes_over_gloo(tmp_path, tiny_dataset):
     run = _run_train(
-        tmp_path, tiny_dataset, "ddp", ["trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", "logger=csv",
-                                        "train.max_steps=4", "train.val_every_n_steps=4", "train.max_time=null",
-                                        "evaluate.enabled=false"]  # fmt: skip
+        tmp_path,
+        tiny_dataset,
+        "ddp",
+        [
+            "trainer=ddp",
+            "trainer.accelerator=cpu",
+            "trainer.devices=2",
+            "logger=csv",
+            "train.max_steps=4",
+            "train.val_every_n_steps=4",
+            "train.max_time=null",
+            "evaluate.enabled=false",
+        ],  # fmt: skip
     )
     # Lightning re-launched the script for rank 1 (it logs to its own file) and rank 0 saved the checkpoint.
     assert (run / "train_ddp_process_1.log").exists()
