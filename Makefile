@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain evaluate fig9-mini radius-mini report bench clean
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain evaluate simulate fig9-mini radius-mini fig9 radius report bench clean
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -57,5 +57,40 @@ pretrain: install ## Train the shipped weights (train=pretrain, 100k steps, hour
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
 	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small
 
+SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
+SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
+fig9-mini: install ## Figure 9's 16 cells on the small preset, 2 parallel CPU jobs (~35-50 min), then the report
+	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
+	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=multirun/fig9_mini/$(SWEEP_STAMP) $(ARGS)
+	$(PY) -m gnsx.report multirun/fig9_mini/$(SWEEP_STAMP)
+
+radius-mini: install ## Connection-radius sweep (5 radii, 64/5) on the small preset (~20-30 min), then the report
+	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
+	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=multirun/radius_mini/$(SWEEP_STAMP) $(ARGS)
+	$(PY) -m gnsx.report multirun/radius_mini/$(SWEEP_STAMP)
+
+fig9: install ## Full figure 9 (WaterRamps, paper schedule), e.g. ARGS='hydra/launcher=slurm hydra.launcher.partition=gpu'
+	$(PY) train.py -m --config-dir sweeps --config-name fig9 hydra.sweep.dir=multirun/fig9/$(SWEEP_STAMP) $(ARGS)
+	$(PY) -m gnsx.report multirun/fig9/$(SWEEP_STAMP)
+
+radius: install ## Full radius sweep (WaterRamps), same ARGS as fig9
+	$(PY) train.py -m --config-dir sweeps --config-name radius hydra.sweep.dir=multirun/radius/$(SWEEP_STAMP) $(ARGS)
+	$(PY) -m gnsx.report multirun/radius/$(SWEEP_STAMP)
+
+report: install ## Report of a sweep: make report SWEEP=multirun/<sweep>/<date_time> (default: the newest)
+	@[ -n "$(SWEEP)" ] || { echo "no multirun directory: make report SWEEP=multirun/<sweep>/<date_time>"; exit 1; }
+	$(PY) -m gnsx.report $(SWEEP)
+
 clean: ## Remove generated data and run outputs (keeps .venv)
 	rm -rf outputs multirun wandb .pytest_cache
+
+CKPT ?=
+SCENE ?= scenes/dam_break.yaml
+evaluate: install ## Evaluate checkpoint(s) on a split: make evaluate CKPT=<run dir|.ckpt> [ARGS='split=valid render.formats=[gif,mp4]']
+	$(PY) evaluate.py checkpoint=$(CKPT) $(ARGS)
+
+simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.ckpt> SCENE=scenes/two_blocks.yaml [ARGS=mpm=true]
+	$(PY) simulate.py checkpoint=$(CKPT) scene=$(SCENE) $(ARGS)
+
+bench: install ## ms/frame and peak memory, simplified vs original GNS at WaterRamps size (ARGS='--device cuda --threads 1')
+	$(PY) -m gnsx.benchmark $(ARGS)

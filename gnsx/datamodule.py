@@ -66,6 +66,8 @@ class TrajectoryDataset(Dataset):
         return self.size
 
     def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < self.size:  # also ends plain iteration at max_trajectories
+            raise IndexError(f"trajectory {index} out of range (0..{self.size - 1})")
         traj: Trajectory = self.reader[index]
         return {
             "position": torch.from_numpy(np.array(traj.position, dtype=np.float32)),

@@ -1,29 +1,49 @@
-"""What ``train.py`` does with its Hydra config: data, model, loggers, Lightning fit, test evaluation, pictures.
+"""What ``train.py`` does with its Hydra config: data, model, loggers, Lightning fit, test evaluation,
+pictures, and the bookkeeping of one job: training time and speed, ``results.json``, failure handling, wandb
+grouping.
 
 This is the one module that reads the composed config; everything it calls takes typed arguments.
+
+Every run writes ``results.json`` into its run directory (schema in :mod:`gnsx.report`): ``"status":
+"running"`` when it starts, ``"ok"`` or ``"failed"`` (with a one-line ``"error"``) when it ends. A job whose
+training loss or test rollout becomes NaN/Inf fails with an error starting ``"diverged:"``. In a Hydra
+multirun a failed job returns NaN instead of raising, so the other jobs of the sweep still run (Hydra's
+launchers stop the whole sweep at the first exception); a single run re-raises after recording. Sweep configs
+(``sweeps/*.yaml``) add a ``sweep`` block: its name groups the wandb runs, and it asks for one rendered frame
+of the first test rollout and a speed/memory benchmark at WaterRamps size for each job.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
+import time
 from pathlib import Path
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
+from hydra.types import RunMode
+from lightning.fabric.utilities.rank_zero import rank_zero_only
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint, TQDMProgressBar
 from omegaconf import DictConfig, OmegaConf
 
+from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.data.metadata import Metadata
 from gnsx.datamodule import ParticleDataModule
+from gnsx.model.simulator import LearnedSimulator
 from gnsx.system import GNSSystem
 
 log = logging.getLogger("gnsx")
 
 #: Config keys of ``model/*.yaml`` that are not LearnedSimulator architecture arguments.
 _NON_ARCH_KEYS = ("name", "noise_std", "radius")
+#: The test metrics every results.json carries (None when the evaluation did not produce one).
+TEST_KEYS = ("rollout_mse", "onestep_mse", "emd", "baseline_mse", "ms_per_frame", "peak_memory_mb")
 
 
 def architecture(model_cfg: DictConfig) -> dict[str, Any]:
@@ -75,8 +95,13 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
     )
 
 
-def build_loggers(cfg: DictConfig, run_dir: Path) -> list:
-    """CSV (always, unless logger=none) and wandb (offline unless logger.offline=false)."""
+def build_loggers(cfg: DictConfig, run_dir: Path, name: str | None = None, group: str | None = None) -> list:
+    """CSV (always, unless logger=none) and wandb (offline unless logger.offline=false).
+
+    Args:
+        name: the wandb run's name (default: the run directory's name); sweeps pass the job's overrides.
+        group: the wandb group (default: ``logger.group``); sweeps pass the sweep's name.
+    """
     loggers = []
     if cfg.logger.csv:
         from lightning.pytorch.loggers import CSVLogger
@@ -86,16 +111,21 @@ def build_loggers(cfg: DictConfig, run_dir: Path) -> list:
     if cfg.logger.wandb:
         from lightning.pytorch.loggers import WandbLogger
 
-        loggers.append(
-            WandbLogger(
-                project=cfg.logger.project,
-                group=cfg.logger.group,
-                name=run_dir.name if cfg.logger.group is None else f"{cfg.logger.group}/{run_dir.name}",
-                save_dir=str(run_dir),
-                offline=bool(cfg.logger.offline),
-                config=OmegaConf.to_container(cfg, resolve=True),
-            )
+        group = group if group is not None else cfg.logger.group
+        if name is None:
+            name = run_dir.name if group is None else f"{group}/{run_dir.name}"
+        wandb_logger = WandbLogger(
+            project=cfg.logger.project,
+            group=group,
+            name=name,
+            save_dir=str(run_dir),
+            offline=bool(cfg.logger.offline),
+            config=OmegaConf.to_container(cfg, resolve=True),
         )
+        # Start the run now rather than at the first logged metric, so that a job failing before it trains
+        # still has its wandb run (finished with exit code 1).
+        _ = wandb_logger.experiment
+        loggers.append(wandb_logger)
     return loggers
 
 
@@ -111,7 +141,8 @@ def resolve_checkpoint(path: str | None) -> str | None:
     return str(p)
 
 
-def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list) -> L.Trainer:
+def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list | None = None) -> L.Trainer:
+    """The Lightning Trainer of ``trainer/`` and ``train/``, with checkpointing and ``callbacks`` added."""
     train = cfg.train
     ckpt_dir = run_dir / "checkpoints"
     running = ModelCheckpoint(
@@ -140,17 +171,270 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list) -> L.Trainer:
         num_sanity_val_steps=0,
         log_every_n_steps=int(train.log_every_n_steps),
         logger=loggers if loggers else False,
-        callbacks=[running, permanent, TQDMProgressBar(refresh_rate=50)],
+        callbacks=[running, permanent, TQDMProgressBar(refresh_rate=50), *(callbacks or [])],
         default_root_dir=str(run_dir),
         enable_model_summary=True,
     )
 
 
-def run_training(cfg: DictConfig) -> float | None:
-    """Train, then evaluate on the test split; returns the test rollout MSE (None when evaluation is off)."""
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
+# -- one job: timing, divergence, results --------------------------------------------------------------------
+class Diverged(RuntimeError):
+    """The training loss or a test rollout became NaN or infinite; the message starts with ``"diverged:"``."""
+
+    def __init__(self, what: str):
+        super().__init__(f"diverged: {what}")
+
+
+class DivergenceGuard(Callback):
+    """Stops training with :class:`Diverged` at the first non-finite training loss (NaN spreads to every
+    weight within a step, so nothing after it is worth computing)."""
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+        if loss is not None and not bool(torch.isfinite(loss.detach()).all()):
+            raise Diverged(f"training loss is {float(loss.detach()):g} at step {trainer.global_step}")
+
+
+class TrainingClock(Callback):
+    """Wall time and optimizer steps of ``trainer.fit``; ``steps_per_s`` leaves validation rollouts out.
+
+    Readable after a failed fit too: an unfinished fit is timed up to its last finished step.
+    """
+
+    def __init__(self):
+        self._start: float | None = None
+        self._last: float | None = None
+        self._first_step = 0
+        self._last_step = 0
+        self._validation_start: float | None = None
+        self.validation_s = 0.0
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self._start = self._last = time.perf_counter()
+        self._first_step = self._last_step = trainer.global_step
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        self._last, self._last_step = time.perf_counter(), trainer.global_step
+
+    def on_validation_start(self, trainer, pl_module) -> None:
+        self._validation_start = time.perf_counter()
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        if self._validation_start is not None:
+            self.validation_s += time.perf_counter() - self._validation_start
+            self._validation_start = None
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        self._last, self._last_step = time.perf_counter(), trainer.global_step
+
+    def summary(self) -> dict[str, float | int | None]:
+        """``train_wall_s`` (s, validation included), ``train_steps`` (optimizer steps of this fit, a resumed
+        run counts only its own), ``steps_per_s`` (validation excluded; None before the first step)."""
+        if self._start is None:
+            return {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
+        wall = self._last - self._start
+        steps = self._last_step - self._first_step
+        training = wall - self.validation_s
+        return {
+            "train_wall_s": wall,
+            "train_steps": steps,
+            "steps_per_s": steps / training if steps > 0 and training > 0 else None,
+        }
+
+
+def one_line(error: BaseException, limit: int = 300) -> str:
+    """``"Type: first line of the message"`` (``"diverged: ..."`` for :class:`Diverged`), at most ``limit``
+    characters: the reason a failed job shows in its results.json and in the sweep report."""
+    message = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    text = message if isinstance(error, Diverged) else f"{type(error).__name__}: {message}".rstrip(": ")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _swept_keys(hydra_cfg: DictConfig) -> set[str]:
+    """Config keys that take several values in this multirun (``a,b``, ``range(...)``, ``choice(...)``): those
+    of the sweep config's ``hydra.sweeper.params`` and of the command line (which Hydra saved in the sweep's
+    ``multirun.yaml`` before launching). Single values only pin a setting for every job."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = OmegaConf.select(hydra_cfg, "sweeper.params", default=None) or {}
+    overrides = [f"{key}={value}" for key, value in params.items()]
+    saved = Path(hydra_cfg.sweep.dir) / "multirun.yaml"
+    if hydra_cfg.mode == RunMode.MULTIRUN and saved.is_file():
+        overrides += list(OmegaConf.select(OmegaConf.load(saved), "hydra.overrides.task", default=None) or [])
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    return {o.get_key_element() for o in parsed if o.is_sweep_override()}
+
+
+def job_identity(cfg: DictConfig, hydra_cfg: DictConfig) -> dict[str, Any]:
+    """Who this job is: its sweep, number and overrides (all of them, and the swept ones)."""
+    multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    overrides = list(hydra_cfg.overrides.task)
+    swept_keys = _swept_keys(hydra_cfg)
+    swept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") in swept_keys]
+    return {
+        "sweep": OmegaConf.select(cfg, "sweep.name", default=None),
+        "job": int(hydra_cfg.job.num) if multirun else None,
+        "multirun": multirun,
+        "overrides": overrides,
+        "swept": swept,
+        # The wandb run name: the swept values, else (a single run) every override.
+        "name": ",".join(swept) or hydra_cfg.job.override_dirname or Path(hydra_cfg.runtime.output_dir).name,
+    }
+
+
+def model_summary(cfg: DictConfig, system: GNSSystem) -> dict[str, Any]:
+    """The model's name, architecture and effective radius (the dataset's when ``model.radius`` is null)."""
+    arch = architecture(cfg.model)
+    arch["wall_clip"] = list(arch["wall_clip"])
+    return {"name": str(cfg.model.name), **arch, "radius": float(system.hparams.radius),
+            "noise_std": float(system.hparams.noise_std)}  # fmt: skip
+
+
+def as_divergence(error: Exception) -> Exception:
+    """Positions that became NaN/Inf (a diverging rollout, or noisy training inputs) fail inside the neighbour
+    search (scipy: "data must be finite") before any error is computed: report them as :class:`Diverged`."""
+    if isinstance(error, ValueError) and "must be finite" in str(error):
+        return Diverged(f"positions became NaN/Inf ({one_line(error)})")
+    return error
+
+
+def check_finite_rollout(summary: dict) -> None:
+    """Raise :class:`Diverged` when the test rollout error is NaN or infinite."""
+    value = summary.get("rollout_mse")
+    if value is None or not math.isfinite(float(value)):
+        raise Diverged(f"test rollout MSE is {value}")
+
+
+def data_spacing(metadata: Metadata, position: np.ndarray, particle_type: np.ndarray) -> float:
+    """Typical distance between neighbouring fluid particles (data units): the generator's particle spacing
+    when the metadata records it (gnsx presets), else the median nearest-neighbour distance of the dynamic
+    particles of ``position [N, D]`` (e.g. the first frame of a test trajectory)."""
+    settings = metadata.extra.get("gnsx", {}).get("preset_settings", {})
+    if settings.get("particle_spacing"):
+        return float(settings["particle_spacing"])
+    from scipy.spatial import cKDTree
+
+    fluid = position[particle_type != KINEMATIC_PARTICLE_ID]
+    distances, _ = cKDTree(fluid).query(fluid, k=2)
+    return float(np.median(distances[:, 1]))
+
+
+def benchmark_at_scale(
+    simulator: LearnedSimulator,
+    metadata: Metadata,
+    spacing: float,
+    num_particles: int,
+    device: torch.device,
+    warmup: int,
+    repeats: int,
+) -> dict[str, Any]:
+    """Inference speed and peak memory of one step (graph build included, :func:`gnsx.benchmark.
+    measure_inference`) on a packed scene of ``num_particles`` (WaterRamps' largest scenes have ~2.3k) at the
+    data's particle spacing, so each particle has as many neighbours as in training.
+
+    When that many particles do not fit in the data's domain at its spacing (the small preset's particles are
+    coarse), the domain is enlarged by steps of 25%: speed and memory do not depend on where the walls are.
+
+    Returns :func:`~gnsx.benchmark.measure_inference`'s dict plus ``spacing`` and ``domain_scale``.
+    """
+    from gnsx.benchmark import measure_inference, packed_scene
+
+    bounds = metadata.bounds_array().astype(np.float64)  # [D, 2]
+    extent = bounds[:, 1] - bounds[:, 0]
+    for attempt in range(8):
+        scale = 1.25**attempt
+        try:
+            grown = np.stack([bounds[:, 0], bounds[:, 0] + scale * extent], axis=1)
+            sequence, particle_type = packed_scene(num_particles, spacing, grown, simulator.history)
+            break
+        except ValueError:
+            if attempt == 7:
+                raise
+    measured = measure_inference(
+        simulator.to(device), sequence, particle_type, warmup=warmup, repeats=repeats
+    )
+    return {**measured, "spacing": spacing, "domain_scale": scale}
+
+
+def render_test_frame(
+    simulator: LearnedSimulator, trajectory: dict, metadata: Metadata, frame: int, out_dir: Path
+) -> dict[str, str | int]:
+    """Roll the model out on one test trajectory up to ``frame``; save that frame, predicted and true, as PNG.
+
+    Args:
+        trajectory: ``position [T, N, D]`` and ``particle_type [N]`` tensors (ground truth).
+        frame: the frame to draw, clamped to the trajectory (the paper's figure 9 shows one frame per model).
+    Returns:
+        ``{"frame", "frame_png", "frame_truth_png"}`` (paths of 256 x 256 images, particles coloured by speed
+        on the ground truth's colour scale, so every model of a sweep is drawn alike).
+    """
+    import imageio.v3 as iio
+
+    from gnsx.model.rollout import rollout
+    from gnsx.render import render_frame, speeds
+
+    position, particle_type = trajectory["position"], trajectory["particle_type"]
+    frames = simulator.input_frames
+    frame = int(min(max(frame, frames), position.shape[0] - 1))
+    simulator = simulator.cpu().eval()
+    predicted = rollout(simulator, position[:frames].transpose(0, 1), particle_type.cpu(), frame - frames + 1)
+    predicted = torch.cat([position[:frames], predicted]).numpy()  # [frame + 1, N, D]
+    truth = position[: frame + 1].numpy()
+    types = particle_type.numpy()
+    true_speed = speeds(truth)
+    scale = float(np.percentile(true_speed[:, types != KINEMATIC_PARTICLE_ID], 99)) or 1.0
+    bounds = metadata.bounds_array()
+    paths = {"frame": frame}
+    for key, positions in (("frame_png", predicted), ("frame_truth_png", truth)):
+        image = render_frame(positions[frame], types, speeds(positions[frame - 1 : frame + 1])[1], bounds,
+                             speed_scale=scale)  # fmt: skip
+        path = out_dir / f"{key.removesuffix('_png')}_{frame:04d}.png"
+        iio.imwrite(path, image)
+        paths[key] = str(path)
+    return paths
+
+
+def _read_results(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _finish_wandb(results: dict) -> None:
+    """Put the job's results into its wandb run's summary and finish it (exit code 1 for a failed job)."""
+    import wandb
+
+    run = wandb.run
+    if run is not None:
+        try:
+            run.config.update({"job": {k: results.get(k) for k in ("sweep", "job", "overrides", "swept")}},
+                              allow_val_change=True)  # fmt: skip
+            flat = {k: v for k, v in results.items() if isinstance(v, (int, float, str, bool)) or v is None}
+            for section in ("test", "bench"):
+                for k, v in (results.get(section) or {}).items():
+                    if isinstance(v, (int, float, str)):
+                        flat[f"{section}/{k}"] = v
+            run.summary.update(flat)
+            if results.get("frame_png") and Path(results["frame_png"]).is_file():
+                run.log({"frame": wandb.Image(results["frame_png"], caption=results.get("name"))})
+        except Exception as error:  # a logging problem must not hide the job's own result or failure
+            log.warning("wandb: could not record the results (%s)", one_line(error))
+    wandb.finish(exit_code=0 if results.get("status") == "ok" else 1)
+
+
+def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: list) -> float | None:
+    """Train, then evaluate on the test split; fills ``record`` and ``loggers`` as it goes (they survive a
+    failure). Returns the test rollout MSE (None when evaluation is off)."""
+    threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None)
+    if threads:
+        # Parallel jobs on one machine (the joblib launcher): n_jobs x threads should not exceed the cores.
+        torch.set_num_threads(int(threads))
     L.seed_everything(int(cfg.seed), workers=True)
     torch.set_float32_matmul_precision("high")
+    loggers.extend(
+        build_loggers(cfg, run_dir, name=record["name"], group=cfg.logger.group or record["sweep"])
+    )
     ensure_dataset(cfg.data)
     datamodule = ParticleDataModule(
         cfg.data.root,
@@ -161,22 +445,87 @@ def run_training(cfg: DictConfig) -> float | None:
         test_max_trajectories=cfg.evaluate.max_trajectories,
     )
     system = build_system(cfg, datamodule)
-    loggers = build_loggers(cfg, run_dir)
+    record["model_config"] = model_summary(cfg, system)
+    record["parameters"] = system.simulator.num_parameters()
+    clock = TrainingClock()
+    trainer = build_trainer(cfg, run_dir, loggers, callbacks=[clock, DivergenceGuard()])
+    log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
+    try:
+        trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))
+    finally:
+        record.update(clock.summary())
+    if not (cfg.evaluate.enabled and trainer.is_global_zero):
+        return None
+    # The benchmark runs where the model trained (Lightning moves it back to the CPU after fit).
+    device = trainer.strategy.root_device
+    from gnsx.evaluate import evaluate_run
+
+    summary = evaluate_run(cfg, system.simulator, datamodule, run_dir, loggers)
+    check_finite_rollout(summary)
+    frame = OmegaConf.select(cfg, "sweep.frame", default=None)
+    bench = OmegaConf.select(cfg, "sweep.bench", default=None)
+    metadata = datamodule.metadata
+    if frame is not None or bench is not None:
+        first = datamodule.test_set[0]
+    if frame is not None:
+        record.update(render_test_frame(system.simulator, first, metadata, int(frame), run_dir))
+    if bench is not None:
+        spacing = bench.get("spacing") or data_spacing(
+            metadata, first["position"][0].numpy(), first["particle_type"].numpy()
+        )
+        try:
+            record["bench"] = benchmark_at_scale(
+                system.simulator, metadata, float(spacing), int(bench.num_particles), device,
+                warmup=int(bench.get("warmup", 3)), repeats=int(bench.get("repeats", 20)),
+            )  # fmt: skip
+        except Exception as error:  # e.g. out of memory at WaterRamps size: a result, not a failed job
+            record["bench"] = {"error": one_line(error)}
+            log.warning("Benchmark at %d particles failed: %s", int(bench.num_particles), one_line(error))
+    return float(summary["rollout_mse"])
+
+
+def run_training(cfg: DictConfig) -> float | None:
+    """Train, then evaluate on the test split; returns the test rollout MSE (None when evaluation is off).
+
+    Writes ``results.json`` (see the module docstring). In a multirun a failed job returns NaN; a single run
+    re-raises.
+    """
+    start = time.perf_counter()
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    identity = job_identity(cfg, hydra_cfg)
+    record: dict[str, Any] = {"status": "running", "error": None, **identity, "run_dir": str(run_dir)}
+    results_path = run_dir / "results.json"
+    writer = rank_zero_only.rank == 0  # DDP: one process writes the results
+    if writer:
+        write_json(results_path, record)
+    loggers: list = []
     result: float | None = None
     try:
-        trainer = build_trainer(cfg, run_dir, loggers)
-        log.info("Model: %s, %d parameters", cfg.model.name, system.simulator.num_parameters())
-        trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))
-        if cfg.evaluate.enabled and trainer.is_global_zero:
-            from gnsx.evaluate import evaluate_run
-
-            summary = evaluate_run(cfg, system.simulator, datamodule, run_dir, loggers)
-            result = summary["rollout_mse"]
+        result = _train_and_evaluate(cfg, run_dir, record, loggers)
+        record["status"] = "ok"
+    except Exception as error:  # a sweep job records any failure and lets the other jobs run
+        reason = as_divergence(error)
+        record["status"], record["error"] = "failed", one_line(reason)
+        log.error(
+            "Job %s failed: %s", identity["name"], record["error"], exc_info=not isinstance(reason, Diverged)
+        )
+        if not identity["multirun"]:
+            raise
+        result = float("nan")
     finally:
+        if record["status"] == "running":  # KeyboardInterrupt, SystemExit
+            record["status"], record["error"] = "failed", "interrupted"
+        record["job_wall_s"] = time.perf_counter() - start
+        # evaluate_run wrote the test summary (and its per-trajectory rows) into results.json: keep them.
+        results = {**_read_results(results_path), **record}
+        results["test"] = {key: None for key in TEST_KEYS} | (results.get("test") or {})
+        results.setdefault("bench", None)
+        if writer:
+            write_json(results_path, results)
         if cfg.logger.wandb:
-            import wandb
-
-            wandb.finish()
+            _finish_wandb(results)
     return result
 
 

@@ -1,0 +1,65 @@
+"""Evaluate trained simulators on a dataset split, configured by Hydra (conf/evaluate.yaml).
+
+    python evaluate.py checkpoint=outputs/2026-11-26/13-00-00              # a run directory or a .ckpt
+    python evaluate.py checkpoint='[runs/original,runs/simplified]' render.formats='[gif,mp4]'   # figure 8
+    python evaluate.py checkpoint=pretrained/small/model.ckpt split=valid save.deepmind=true
+
+Everything lands in the Hydra run directory (outputs/evaluate/<date>/<time>/): results.json, per model
+trajectories.csv, per_frame.csv and rollouts/*.npz, and comparison.gif + strip.png. The returned value (the
+first model's rollout MSE) is what Hydra sweepers optimise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from gnsx.evaluate import evaluate_checkpoints
+from gnsx.pipeline import build_loggers
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
+def main(cfg: DictConfig) -> float:
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    checkpoints = list(cfg.checkpoint) if isinstance(cfg.checkpoint, ListConfig) else [cfg.checkpoint]
+    loggers = build_loggers(cfg, run_dir)
+    try:
+        results = evaluate_checkpoints(
+            checkpoints,
+            cfg.data.root,
+            run_dir,
+            split=cfg.split,
+            labels=OmegaConf.to_container(cfg.labels) if cfg.labels is not None else None,
+            max_trajectories=cfg.max_trajectories,
+            device=cfg.device,
+            **OmegaConf.to_container(cfg.metrics),
+            save_rollouts=cfg.save.rollouts,
+            deepmind=cfg.save.deepmind,
+            render=cfg.render.enabled,
+            render_trajectory=cfg.render.trajectory,
+            render_formats=list(cfg.render.formats),
+            frame_stride=cfg.render.frame_stride,
+            fps=cfg.render.fps,
+            strip_every=cfg.render.strip_every,
+            strip_count=cfg.render.strip_count,
+            loggers=loggers,
+        )
+        for logger in loggers:
+            logger.finalize("success")
+    finally:
+        if cfg.logger.wandb:
+            import wandb
+
+            wandb.finish()
+    print(f"Results: {run_dir / 'results.json'}")
+    return results["models"][0]["summary"]["rollout_mse"]
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,632 @@
+"""Report of one Hydra multirun sweep: the paper's figure 9 grid, speed against error with the Pareto front, a
+markdown table and a wandb table.
+
+    python -m gnsx.report multirun/fig9_mini/2026-11-26_13-00-00     # writes <that dir>/report/
+
+Outputs (in ``<sweep dir>/report/``):
+
+* ``grid.png``: one frame of each job's first test rollout, rows the embedding size and columns the
+  message-passing count (figure 9: capacity falls from top left to bottom right), each cell annotated with
+  ms/frame, MB and rollout MSE, the paper's 64/5 cell framed in green, failed jobs with their reason, and the
+  ground truth's frame for reference. A sweep of one parameter (e.g. the radius) gives one row.
+* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log), the Pareto front marked (no other job
+  is both faster and more accurate).
+* ``radius.png`` (when the radius varies): rollout and one-step error, and ms/frame, against the radius.
+* ``report.md``: the table of every job (failed ones with their reason) and the pictures; ``results.csv``.
+* ``wandb/``: an offline wandb run (group = the sweep's name) holding the table as a ``wandb.Table`` and the
+  pictures (``wandb sync`` uploads it).
+
+Speed and memory come from the benchmark at WaterRamps size (``bench``) when every successful job has it,
+otherwise from the test rollouts (``test``); the report says which.
+
+``results.json`` (one per job folder, written by :func:`gnsx.pipeline.run_training`)::
+
+    status          "ok" | "failed" | "running" (a job killed before it finished leaves "running")
+    error           one line: why the job failed ("diverged: ..." for a NaN/Inf loss or rollout), else null
+    sweep, job      the sweep's name (``sweep.name``), the job number in the multirun
+    overrides       every Hydra override of the job; ``swept``: the ones the sweep varies; ``name``: the
+                    wandb run name (the swept overrides joined by commas)
+    run_dir         the job folder
+    model           the model config's name; ``model_config``: its architecture (latent_size, mp_steps,
+                    mlp_hidden_size, ...) with the effective ``radius`` (data units) and ``noise_std``
+    parameters      trainable parameter count
+    train_wall_s    wall time of trainer.fit (s, validation included); ``train_steps``: optimizer steps of
+                    this run; ``steps_per_s``: steps per second of training (validation excluded);
+                    ``job_wall_s``: the whole job (data, training, evaluation, pictures, benchmark)
+    test            {rollout_mse, onestep_mse, emd, baseline_mse (data units^2, dynamic particles),
+                     ms_per_frame (rollout, graph build included), peak_memory_mb, trajectories, ...}
+    bench           {ms_per_frame, peak_memory_mb, num_particles, spacing, device}: one inference step on a
+                    packed scene of WaterRamps size at the data's particle spacing; {error} when it failed
+    frame, frame_png, frame_truth_png
+                    the rendered frame index of the first test rollout and its PNGs (prediction, ground truth)
+    rows            per-test-trajectory errors (from gnsx.evaluate)
+
+A job folder without results.json (the job never started, or crashed before writing) counts as failed, with
+its model read from ``.hydra/config.yaml``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The paper's model (figure 9's green cell): (latent size, message-passing steps).
+PAPER_CELL = (64, 5)
+#: Grid axes in the order rows, columns, as in the paper's figure 9.
+AXES = ("latent_size", "mp_steps", "radius")
+AXIS_LABELS = {"latent_size": "embedding size", "mp_steps": "message passing steps", "radius": "radius"}
+
+
+@dataclass
+class Job:
+    """One job of a sweep, flattened for the report. Numbers are None when unknown (e.g. a failed job)."""
+
+    job: int | None
+    folder: Path
+    name: str
+    status: str
+    error: str | None
+    latent_size: int | None = None
+    mp_steps: int | None = None
+    radius: float | None = None
+    parameters: int | None = None
+    train_steps: int | None = None
+    steps_per_s: float | None = None
+    train_wall_s: float | None = None
+    test: dict[str, Any] = field(default_factory=dict)
+    bench: dict[str, Any] = field(default_factory=dict)
+    frame_png: str | None = None
+    frame_truth_png: str | None = None
+    sweep: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def ms_per_frame(self, source: str) -> float | None:
+        return _number((self.bench if source == "bench" else self.test).get("ms_per_frame"))
+
+    def memory_mb(self, source: str) -> float | None:
+        return _number((self.bench if source == "bench" else self.test).get("peak_memory_mb"))
+
+    @property
+    def rollout_mse(self) -> float | None:
+        return _number(self.test.get("rollout_mse"))
+
+    def label(self, keys: Sequence[str]) -> str:
+        """Short name from the swept values, e.g. ``64/5`` (latent/MP) or ``R=0.035``."""
+        parts = []
+        for key in keys:
+            value = getattr(self, key)
+            parts.append(f"R={value:g}" if key == "radius" and value is not None else str(value))
+        return "/".join(parts) if parts else (self.name or f"job {self.job}")
+
+
+def _number(value: Any) -> float | None:
+    """A finite float, or None (missing, null, NaN)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _job_config(folder: Path) -> dict:
+    """The job's composed config from Hydra's ``.hydra/config.yaml`` (empty when absent)."""
+    path = folder / ".hydra" / "config.yaml"
+    if not path.is_file():
+        return {}
+    from omegaconf import OmegaConf
+
+    try:
+        return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    except Exception:  # an unreadable config only costs the report the job's model fields
+        return {}
+
+
+def load_job(folder: Path) -> Job:
+    """A job folder of a multirun as a :class:`Job` (see the module docstring for what counts as failed)."""
+    path = folder / "results.json"
+    results: dict = {}
+    if path.is_file():
+        try:
+            results = json.loads(path.read_text())
+        except ValueError as error:
+            results = {"status": "failed", "error": f"{path}: unreadable results.json ({error})"}
+    else:
+        results = {"status": "failed", "error": "no results.json (the job never ran or was killed)"}
+        overrides = folder / ".hydra" / "overrides.yaml"
+        if overrides.is_file():
+            import yaml
+
+            results["name"] = ",".join(map(str, yaml.safe_load(overrides.read_text()) or []))
+    status = results.get("status", "ok" if "test" in results else "failed")
+    error = results.get("error")
+    if status == "running":
+        status, error = "failed", "did not finish (killed, out of memory or timed out?)"
+    config = _job_config(folder)
+    model_cfg = config.get("model", {})
+    model = results.get("model_config") or {}
+
+    def pick(key: str, cast):
+        value = model.get(key, model_cfg.get(key))
+        try:
+            return cast(value) if value is not None else None
+        except (TypeError, ValueError):  # e.g. an unresolved interpolation
+            return None
+
+    try:
+        number = int(results.get("job", folder.name))
+    except (TypeError, ValueError):
+        number = None
+    return Job(
+        job=number,
+        folder=folder,
+        name=results.get("name") or folder.name,
+        status=status,
+        error=error,
+        latent_size=pick("latent_size", int),
+        mp_steps=pick("mp_steps", int),
+        radius=pick("radius", float),
+        parameters=results.get("parameters"),
+        train_steps=results.get("train_steps"),
+        steps_per_s=_number(results.get("steps_per_s")),
+        train_wall_s=_number(results.get("train_wall_s")),
+        test=results.get("test") or {},
+        bench=results.get("bench") or {},
+        frame_png=results.get("frame_png"),
+        frame_truth_png=results.get("frame_truth_png"),
+        sweep=results.get("sweep") or config.get("sweep", {}).get("name"),
+    )
+
+
+def load_sweep(sweep_dir: str | Path) -> list[Job]:
+    """Every job folder of a multirun directory (a subfolder with ``.hydra/`` or ``results.json``), by job."""
+    sweep_dir = Path(sweep_dir)
+    if not sweep_dir.is_dir():
+        raise FileNotFoundError(f"{sweep_dir}: no such multirun directory")
+    folders = [
+        p
+        for p in sweep_dir.iterdir()
+        if p.is_dir() and ((p / ".hydra").is_dir() or (p / "results.json").is_file())
+    ]
+    if not folders:
+        raise FileNotFoundError(f"{sweep_dir}: no job folders (subfolders with .hydra/ or results.json)")
+    jobs = [load_job(p) for p in folders]
+    return sorted(jobs, key=lambda j: (j.job is None, j.job if j.job is not None else 0, j.folder.name))
+
+
+def swept_axes(jobs: Sequence[Job]) -> list[str]:
+    """The model axes (latent_size, mp_steps, radius) taking more than one value across the jobs."""
+    return [key for key in AXES if len({getattr(j, key) for j in jobs if getattr(j, key) is not None}) > 1]
+
+
+def speed_source(jobs: Sequence[Job]) -> str:
+    """``"bench"`` when every successful job has a benchmark at scale, else ``"test"`` (the test rollouts)."""
+    ok = [j for j in jobs if j.ok]
+    return "bench" if ok and all(j.ms_per_frame("bench") is not None for j in ok) else "test"
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
+    """Indices of the points no other point beats on both coordinates (both minimised), sorted by the first.
+
+    Args:
+        points: ``(cost, error)`` pairs, e.g. (ms/frame, rollout MSE).
+    """
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], math.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+# -- pictures ------------------------------------------------------------------------------------------------
+def _cell_text(job: Job, source: str) -> str:
+    ms, mb, mse = job.ms_per_frame(source), job.memory_mb(source), job.rollout_mse
+    first = f"{ms:.1f} ms/frame" if ms is not None else "? ms/frame"
+    first += f", {mb:.0f} MB" if mb is not None else ""
+    return first + (f"\nMSE {mse:.2e}" if mse is not None else "")
+
+
+def grid_layout(jobs: Sequence[Job]) -> tuple[str | None, list, str, list]:
+    """``(row_key, row_values, col_key, col_values)`` of the grid picture: the first two swept axes of
+    :data:`AXES` (one row when only one varies). Latent sizes and MP counts run from large to small (capacity
+    falls from top left to bottom right, as in figure 9), radii from small to large."""
+    axes_keys = swept_axes(jobs)[:2] or ["mp_steps"]
+    row_key = axes_keys[0] if len(axes_keys) == 2 else None
+    col_key = axes_keys[-1]
+    row_values = sorted({getattr(j, row_key) for j in jobs}, key=_desc) if row_key else [None]
+    col_values = sorted({getattr(j, col_key) for j in jobs}, key=_desc if col_key != "radius" else _asc)
+    return row_key, row_values, col_key, col_values
+
+
+def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL) -> Path:
+    """Figure 9: one rendered test frame per job on a grid of the swept axes (first two of :data:`AXES`)."""
+    import imageio.v3 as iio
+    import matplotlib.pyplot as plt
+
+    row_key, row_values, col_key, col_values = grid_layout(jobs)
+    cells: dict[tuple, Job] = {}
+    for job in jobs:
+        cells.setdefault((getattr(job, row_key) if row_key else None, getattr(job, col_key)), job)
+    source = speed_source(jobs)
+    truth = next(
+        (j.frame_truth_png for j in jobs if j.frame_truth_png and Path(j.frame_truth_png).is_file()), None
+    )
+    ncols = len(col_values) + (1 if truth else 0)
+    fig, grid = plt.subplots(
+        len(row_values), ncols, figsize=(2.6 * ncols, 2.9 * len(row_values)), squeeze=False
+    )
+    for r, row_value in enumerate(row_values):
+        for c, col_value in enumerate(col_values):
+            ax = grid[r, c]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            job = cells.get((row_value, col_value))
+            if job is None:
+                ax.set_facecolor("0.92")
+                ax.text(0.5, 0.5, "not run", ha="center", va="center", transform=ax.transAxes)
+            elif job.ok and job.frame_png and Path(job.frame_png).is_file():
+                ax.imshow(iio.imread(job.frame_png))
+                ax.set_xlabel(_cell_text(job, source), fontsize=8)
+            else:
+                ax.set_facecolor("0.85")
+                reason = "failed: " + (job.error or "unknown") if not job.ok else "no frame rendered"
+                ax.text(0.5, 0.5, "\n".join(textwrap.wrap(reason, 26)[:6]), ha="center", va="center",
+                        fontsize=7, color="darkred", transform=ax.transAxes)  # fmt: skip
+                if job.ok:
+                    ax.set_xlabel(_cell_text(job, source), fontsize=8)
+            if r == 0:
+                ax.set_title(_axis_value(col_key, col_value), fontsize=10)
+            if c == 0 and row_key:
+                ax.set_ylabel(_axis_value(row_key, row_value), fontsize=10)
+            is_paper = (
+                highlight is not None
+                and job is not None
+                and (job.latent_size, job.mp_steps) == tuple(highlight)
+                and {row_key, col_key} <= {"latent_size", "mp_steps", None}
+            )
+            for spine in ax.spines.values():
+                spine.set_edgecolor("limegreen" if is_paper else "0.6")
+                spine.set_linewidth(4 if is_paper else 0.8)
+        if truth:
+            ax = grid[r, -1]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.imshow(iio.imread(truth))
+                ax.set_title("ground truth", fontsize=10)
+            else:
+                ax.axis("off")
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollouts"
+    sweep = next((j.sweep for j in jobs if j.sweep), "sweep")
+    fig.suptitle(f"{sweep}: one test frame per model; ms/frame and peak MB from the {what}", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _desc(value):
+    return -value if value is not None else math.inf
+
+
+def _asc(value):
+    return value if value is not None else math.inf
+
+
+def _axis_value(key: str, value) -> str:
+    if key == "radius":
+        return f"radius {value:g}" if value is not None else "radius ?"
+    return f"{'MP' if key == 'mp_steps' else 'latent'} {value}"
+
+
+def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL) -> Path:
+    """ms/frame against test rollout MSE, log-log, every successful job labelled, the Pareto front joined."""
+    import matplotlib.pyplot as plt
+
+    source = speed_source(jobs)
+    keys = swept_axes(jobs)
+    points, shown = [], []
+    for job in jobs:
+        ms, mse = job.ms_per_frame(source), job.rollout_mse
+        if job.ok and ms is not None and mse is not None and ms > 0 and mse > 0:
+            points.append((ms, mse))
+            shown.append(job)
+    fig, ax = plt.subplots(figsize=(7, 5))
+    if points:
+        xs, ys = np.array(points).T
+        ax.scatter(xs, ys, color="tab:blue", zorder=3, label="model")
+        for job, (x, y) in zip(shown, points):
+            ax.annotate(job.label(keys), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+            if highlight is not None and (job.latent_size, job.mp_steps) == tuple(highlight):
+                ax.scatter([x], [y], s=220, facecolors="none", edgecolors="limegreen", linewidths=2, zorder=4,
+                           label=f"paper's {highlight[0]}/{highlight[1]}")  # fmt: skip
+        front = pareto_front(points)
+        # A staircase: between two front points, the best error reachable at that speed is the slower one's.
+        ax.plot(xs[front], ys[front], "-o", drawstyle="steps-post", color="tab:red", mfc="none", ms=11,
+                zorder=2, label="Pareto front")  # fmt: skip
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no successful job", ha="center", va="center", transform=ax.transAxes)
+    failed = [j for j in jobs if not j.ok]
+    if failed:
+        names = ", ".join(j.label(keys) for j in failed)
+        ax.text(0.01, 0.01, f"{len(failed)} failed job(s) not shown: {names}", transform=ax.transAxes,
+                fontsize=7, color="darkred")  # fmt: skip
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
+    ax.set_xlabel(f"inference ms/frame ({what}, graph build included)")
+    ax.set_ylabel("test rollout MSE (data units$^2$)")
+    ax.set_title(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: speed vs error", fontsize=11)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
+    """Rollout (and one-step) MSE, and ms/frame, against the connection radius; failed radii marked."""
+    import matplotlib.pyplot as plt
+
+    source = speed_source(jobs)
+    ok = sorted((j for j in jobs if j.ok and j.radius is not None), key=lambda j: j.radius)
+    fig, (err_ax, ms_ax) = plt.subplots(1, 2, figsize=(10, 4))
+    radius = [j.radius for j in ok]
+    for key, style in (("rollout_mse", "-o"), ("onestep_mse", "--s")):
+        values = [_number(j.test.get(key)) for j in ok]
+        if any(v is not None for v in values):
+            err_ax.plot(
+                radius, [np.nan if v is None else v for v in values], style, label=key.replace("_", " ")
+            )
+    ms = [j.ms_per_frame(source) for j in ok]
+    ms_ax.plot(radius, [np.nan if v is None else v for v in ms], "-o", color="tab:orange")
+    for job in jobs:
+        if not job.ok and job.radius is not None:
+            for ax in (err_ax, ms_ax):
+                ax.axvline(job.radius, color="darkred", ls=":", lw=1)
+                ax.text(job.radius, 0.98, " failed", color="darkred", fontsize=7, va="top",
+                        transform=ax.get_xaxis_transform())  # fmt: skip
+    err_ax.set_yscale("log")
+    err_ax.set_xlabel("connection radius (data units)")
+    err_ax.set_ylabel("test MSE (data units$^2$)")
+    if err_ax.get_legend_handles_labels()[0]:
+        err_ax.legend(fontsize=8)
+    ms_ax.set_xlabel("connection radius (data units)")
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
+    ms_ax.set_ylabel(f"inference ms/frame ({what})")
+    for ax in (err_ax, ms_ax):
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: error and speed against radius")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# -- tables --------------------------------------------------------------------------------------------------
+COLUMNS = (
+    "job", "name", "status", "latent_size", "mp_steps", "radius", "parameters", "train_steps", "steps_per_s",
+    "train_min", "rollout_mse", "onestep_mse", "emd", "baseline_mse", "test_ms_per_frame", "test_peak_mb",
+    "bench_ms_per_frame", "bench_peak_mb", "pareto", "error",
+)  # fmt: skip
+
+
+def table_rows(jobs: Sequence[Job]) -> list[dict[str, Any]]:
+    """One dict per job with :data:`COLUMNS` (None where unknown); ``pareto`` marks the speed/error front."""
+    source = speed_source(jobs)
+    candidates = [
+        j for j in jobs if j.ok and j.ms_per_frame(source) is not None and j.rollout_mse is not None
+    ]
+    front = {
+        id(candidates[i]) for i in pareto_front([(j.ms_per_frame(source), j.rollout_mse) for j in candidates])
+    }
+    rows = []
+    for j in jobs:
+        rows.append(
+            {
+                "job": j.job,
+                "name": j.name,
+                "status": j.status,
+                "latent_size": j.latent_size,
+                "mp_steps": j.mp_steps,
+                "radius": j.radius,
+                "parameters": j.parameters,
+                "train_steps": j.train_steps,
+                "steps_per_s": j.steps_per_s,
+                "train_min": j.train_wall_s / 60 if j.train_wall_s is not None else None,
+                "rollout_mse": j.rollout_mse,
+                "onestep_mse": _number(j.test.get("onestep_mse")),
+                "emd": _number(j.test.get("emd")),
+                "baseline_mse": _number(j.test.get("baseline_mse")),
+                "test_ms_per_frame": j.ms_per_frame("test"),
+                "test_peak_mb": j.memory_mb("test"),
+                "bench_ms_per_frame": j.ms_per_frame("bench"),
+                "bench_peak_mb": j.memory_mb("bench"),
+                "pareto": id(j) in front,
+                "error": j.error or (j.bench.get("error") and f"benchmark: {j.bench['error']}") or None,
+            }
+        )
+    return rows
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else ""
+    if isinstance(value, int):
+        return f"{value:,}"
+    if isinstance(value, float):
+        return f"{value:.3g}" if value == 0 or 1e-2 <= abs(value) < 1e4 else f"{value:.2e}"
+    return str(value).replace("|", "\\|")
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """A GitHub markdown table of :func:`table_rows`."""
+    header = "| " + " | ".join(COLUMNS) + " |"
+    rule = "|" + "|".join("---" for _ in COLUMNS) + "|"
+    lines = [header, rule]
+    for row in rows:
+        lines.append(
+            "| "
+            + " | ".join(_fmt(row[c]) if row[c] is not None or c != "error" else "" for c in COLUMNS)
+            + " |"
+        )
+    return "\n".join(lines)
+
+
+def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str, Path], sweep_dir: Path,
+                   path: Path) -> Path:  # fmt: skip
+    """``report.md``: counts, pictures, the table, the Pareto front and the failed jobs with their reasons."""
+    source = speed_source(jobs)
+    keys = swept_axes(jobs)
+    ok = [j for j in jobs if j.ok]
+    sweep = next((j.sweep for j in jobs if j.sweep), sweep_dir.name)
+    lines = [
+        f"# Sweep report: {sweep}",
+        "",
+        f"Multirun directory: `{sweep_dir}`. Jobs: {len(jobs)} ({len(ok)} ok, {len(jobs) - len(ok)} failed).",
+        f"Swept: {', '.join(AXIS_LABELS[k] for k in keys) or 'nothing among latent size, MP steps, radius'}.",
+        "Speed and memory in the pictures: "
+        + ("one inference step at WaterRamps size (`bench`)." if source == "bench" else "the test rollouts."),
+        "Errors: position MSE per coordinate over dynamic particles, test split (data units squared).",
+        "",
+    ]
+    for title, picture in pictures.items():
+        lines += [f"![{title}]({picture.name})", ""]
+    lines += [markdown_table(rows), ""]
+    front = sorted((r for r in rows if r["pareto"]), key=lambda r: r[f"{source}_ms_per_frame"])
+    if front:
+        labels = [
+            next(j for j in jobs if j.job == r["job"] and j.name == r["name"]).label(keys) for r in front
+        ]
+        lines += [f"Pareto front (ms/frame vs rollout MSE, fastest first): {', '.join(labels)}.", ""]
+    failed = [j for j in jobs if not j.ok]
+    if failed:
+        lines += ["## Failed jobs", ""]
+        lines += [f"- job {j.job} (`{j.name}`): {j.error or 'unknown reason'}" for j in failed]
+        lines.append("")
+    path.write_text("\n".join(lines))
+    return path
+
+
+def write_csv(rows: Sequence[dict], path: Path) -> Path:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def log_wandb_table(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str, Path], out_dir: Path,
+                    project: str, mode: str) -> Path | None:  # fmt: skip
+    """The table (with each job's frame) and the pictures as one wandb run in the sweep's group.
+
+    Returns the run's local folder (None when ``mode == "disabled"``).
+    """
+    if mode == "disabled":
+        return None
+    import wandb
+
+    sweep = next((j.sweep for j in jobs if j.sweep), out_dir.parent.name)
+    run = wandb.init(
+        project=project,
+        group=sweep,
+        name=f"{sweep}/report",
+        job_type="report",
+        dir=str(out_dir),
+        mode=mode,
+        config={"sweep_dir": str(out_dir.parent), "jobs": len(jobs)},
+    )
+    try:
+        columns = [*COLUMNS, "frame"]
+        data = []
+        for job, row in zip(jobs, rows):
+            frame = wandb.Image(job.frame_png) if job.frame_png and Path(job.frame_png).is_file() else None
+            data.append([row[c] for c in COLUMNS] + [frame])
+        run.log({"results": wandb.Table(columns=columns, data=data),
+                 **{title: wandb.Image(str(p)) for title, p in pictures.items()}})  # fmt: skip
+        folder = Path(run.dir).parent
+    finally:
+        run.finish()
+    return folder
+
+
+def build_report(
+    sweep_dir: str | Path,
+    out_dir: str | Path | None = None,
+    highlight: tuple[int, int] | None = PAPER_CELL,
+    wandb_mode: str = "offline",
+    project: str | None = None,
+) -> dict[str, Path]:
+    """Everything of the module docstring for one multirun directory. Returns ``{what: path}``."""
+    sweep_dir = Path(sweep_dir)
+    jobs = load_sweep(sweep_dir)
+    out = Path(out_dir) if out_dir is not None else sweep_dir / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    keys = swept_axes(jobs)
+    pictures: dict[str, Path] = {}
+    if any(j.frame_png for j in jobs) or {"latent_size", "mp_steps"} & set(keys):
+        pictures["grid"] = plot_grid(jobs, out / "grid.png", highlight)
+    pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight)
+    if "radius" in keys:
+        pictures["radius"] = plot_radius(jobs, out / "radius.png")
+    rows = table_rows(jobs)
+    outputs = dict(pictures)
+    outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md")
+    outputs["csv"] = write_csv(rows, out / "results.csv")
+    if project is None:
+        project = _job_config(jobs[0].folder).get("logger", {}).get("project", "gnsx")
+    wandb_dir = log_wandb_table(jobs, rows, pictures, out, project, wandb_mode)
+    if wandb_dir is not None:
+        outputs["wandb"] = wandb_dir
+    return outputs
+
+
+def _parse_cell(text: str) -> tuple[int, int] | None:
+    if text.lower() == "none":
+        return None
+    latent, mp = text.lower().split("x")
+    return int(latent), int(mp)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gnsx.report", description=__doc__.split("\n\n")[0])
+    parser.add_argument("sweep_dir", help="a Hydra multirun directory (holds one folder per job)")
+    parser.add_argument("--out", default=None, help="output folder (default: <sweep_dir>/report)")
+    parser.add_argument(
+        "--highlight",
+        default=f"{PAPER_CELL[0]}x{PAPER_CELL[1]}",
+        help="grid cell to frame, LATENTxMP (default: the paper's 64x5; 'none' for none)",
+    )
+    parser.add_argument(
+        "--wandb",
+        default="offline",
+        choices=("offline", "online", "disabled"),
+        help="the report's wandb run (default offline: `wandb sync` uploads it later)",
+    )
+    parser.add_argument("--project", default=None, help="wandb project (default: the jobs' logger.project)")
+    args = parser.parse_args(argv)
+    outputs = build_report(args.sweep_dir, args.out, _parse_cell(args.highlight), args.wandb, args.project)
+    print(Path(outputs["markdown"]).read_text())
+    for what, path in outputs.items():
+        print(f"{what}: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,189 @@
+"""The sweep report from hand-made job folders: loading (failed, killed, missing jobs), the Pareto front, the
+grid/scatter/radius pictures, the markdown table and the wandb table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from gnsx.report import (
+    build_report,
+    grid_layout,
+    load_sweep,
+    main,
+    markdown_table,
+    pareto_front,
+    speed_source,
+    swept_axes,
+    table_rows,
+)
+
+
+def _job(sweep_dir: Path, number: int, results: dict | None, hydra_model: dict | None = None) -> Path:
+    """A job folder as Hydra + gnsx.pipeline leave it: .hydra/config.yaml, results.json, a frame PNG."""
+    folder = sweep_dir / str(number)
+    (folder / ".hydra").mkdir(parents=True)
+    model = hydra_model or (results or {}).get("model_config", {})
+    (folder / ".hydra" / "overrides.yaml").write_text(
+        json.dumps(
+            [f"model.latent_size={model.get('latent_size')}", f"model.mp_steps={model.get('mp_steps')}"]
+        )
+    )
+    (folder / ".hydra" / "config.yaml").write_text(
+        json.dumps({"model": model, "logger": {"project": "gnsx-test"}, "sweep": {"name": "unit"}})
+    )  # JSON is YAML
+    if results is not None:
+        if results.get("status") == "ok":
+            frame = folder / "frame_0150.png"
+            shade = 40 + 10 * number
+            iio.imwrite(frame, np.full((64, 64, 3), shade, np.uint8))
+            results.setdefault("frame_png", str(frame))
+            results.setdefault("frame_truth_png", str(frame))
+        (folder / "results.json").write_text(json.dumps({"job": number, "sweep": "unit", **results}))
+    return folder
+
+
+def _ok(latent: int, mp: int, mse: float, ms: float, radius: float = 0.035, bench_ms: float | None = None):
+    return {
+        "status": "ok",
+        "error": None,
+        "name": f"model.latent_size={latent},model.mp_steps={mp}",
+        "model_config": {"latent_size": latent, "mp_steps": mp, "radius": radius},
+        "parameters": latent * latent * mp,
+        "train_steps": 100,
+        "steps_per_s": 10.0,
+        "train_wall_s": 10.0,
+        "test": {
+            "rollout_mse": mse,
+            "onestep_mse": mse / 100,
+            "emd": None,
+            "baseline_mse": 0.05,
+            "ms_per_frame": ms,
+            "peak_memory_mb": 10.0 * latent / 16,
+        },  # fmt: skip
+        "bench": {"ms_per_frame": bench_ms, "peak_memory_mb": 100.0} if bench_ms else None,
+    }
+
+
+@pytest.fixture
+def grid_sweep(tmp_path) -> Path:
+    """A 2x2 grid (latent 64/16 x MP 5/1) with one diverged cell, plus a killed and a never-started job."""
+    sweep = tmp_path / "grid"
+    _job(sweep, 0, _ok(64, 5, mse=0.01, ms=20.0))
+    _job(sweep, 1, _ok(64, 1, mse=0.03, ms=8.0))
+    _job(sweep, 2, {"status": "failed", "error": "diverged: training loss is nan at step 12",
+                    "name": "model.latent_size=16,model.mp_steps=5",
+                    "model_config": {"latent_size": 16, "mp_steps": 5, "radius": 0.035}})  # fmt: skip
+    _job(sweep, 3, _ok(16, 1, mse=0.02, ms=2.0))
+    _job(sweep, 4, {"status": "running", "name": "model.latent_size=32,model.mp_steps=5"},
+         hydra_model={"latent_size": 32, "mp_steps": 5})  # fmt: skip
+    _job(sweep, 5, None, hydra_model={"latent_size": 32, "mp_steps": 1})
+    (sweep / ".submitit").mkdir()  # launcher folders are not jobs
+    return sweep
+
+
+def _green_pixels(path: Path) -> int:
+    image = iio.imread(path)[..., :3].astype(int)
+    return int((np.abs(image - np.array([50, 205, 50])).sum(axis=-1) < 30).sum())
+
+
+def test_pareto_front_keeps_the_undominated_points():
+    points = [(1.0, 5.0), (2.0, 3.0), (3.0, 4.0), (4.0, 1.0), (2.5, 3.0), (0.5, 9.0)]
+    assert pareto_front(points) == [5, 0, 1, 3]
+    assert pareto_front([]) == []
+    assert pareto_front([(1.0, 1.0), (1.0, 1.0)]) == [0]
+
+
+def test_jobs_that_failed_were_killed_or_never_ran_are_failed(grid_sweep):
+    jobs = load_sweep(grid_sweep)
+    assert [j.job for j in jobs] == [0, 1, 2, 3, 4, 5]
+    status = {j.job: (j.status, j.error) for j in jobs}
+    assert status[2] == ("failed", "diverged: training loss is nan at step 12")
+    assert status[4][0] == "failed" and "did not finish" in status[4][1]
+    assert status[5][0] == "failed" and "no results.json" in status[5][1]
+    # Their cells are known from the job's Hydra config.
+    assert (jobs[5].latent_size, jobs[5].mp_steps) == (32, 1)
+    assert swept_axes(jobs) == ["latent_size", "mp_steps"]
+    assert speed_source(jobs) == "test"
+
+
+def test_table_marks_the_pareto_front_and_lists_every_job(grid_sweep):
+    jobs = load_sweep(grid_sweep)
+    rows = table_rows(jobs)
+    front = {(r["latent_size"], r["mp_steps"]) for r in rows if r["pareto"]}
+    # 16/1 is fastest; 64/5 is the most accurate; 64/1 is slower than 16/1 and less accurate.
+    assert front == {(16, 1), (64, 5)}
+    table = markdown_table(rows)
+    assert len(table.splitlines()) == 2 + len(jobs)
+    assert "diverged: training loss is nan at step 12" in table
+    assert rows[0]["train_min"] == pytest.approx(10.0 / 60)
+
+
+def test_report_files_for_a_grid_sweep(grid_sweep, tmp_path):
+    outputs = build_report(grid_sweep, wandb_mode="offline")
+    assert {"grid", "speed_vs_error", "markdown", "csv", "wandb"} <= set(outputs)
+    assert "radius" not in outputs  # the radius did not vary
+    assert grid_layout(load_sweep(grid_sweep)) == ("latent_size", [64, 32, 16], "mp_steps", [5, 1])
+    # The paper's 64/5 cell is framed in green (matplotlib's limegreen), and only when highlighted.
+    assert _green_pixels(outputs["grid"]) > 500
+    assert iio.imread(outputs["speed_vs_error"]).shape[2] in (3, 4)
+    markdown = outputs["markdown"].read_text()
+    assert "![grid](grid.png)" in markdown and "![speed_vs_error](speed_vs_error.png)" in markdown
+    assert "Jobs: 6 (3 ok, 3 failed)" in markdown
+    assert "Pareto front (ms/frame vs rollout MSE, fastest first): 16/1, 64/5." in markdown
+    assert markdown.count("- job ") == 3
+    assert "- job 5 (`model.latent_size=32,model.mp_steps=1`): no results.json" in markdown
+    assert len(outputs["csv"].read_text().strip().splitlines()) == 7
+    assert list(outputs["wandb"].glob("*.wandb"))
+    # No highlight, another folder, no wandb run.
+    again = build_report(grid_sweep, tmp_path / "elsewhere", highlight=None, wandb_mode="disabled")
+    assert "wandb" not in again and again["grid"].parent == tmp_path / "elsewhere"
+    assert _green_pixels(again["grid"]) == 0
+
+
+def test_bench_figures_are_preferred_when_every_job_has_them(tmp_path):
+    sweep = tmp_path / "bench"
+    _job(sweep, 0, _ok(64, 5, mse=0.01, ms=20.0, bench_ms=4.0))
+    _job(sweep, 1, _ok(16, 1, mse=0.02, ms=2.0, bench_ms=1.0))
+    jobs = load_sweep(sweep)
+    assert speed_source(jobs) == "bench"
+    assert jobs[0].ms_per_frame("bench") == 4.0 and jobs[0].memory_mb("bench") == 100.0
+    markdown = build_report(sweep, wandb_mode="disabled")["markdown"].read_text()
+    assert "one inference step at WaterRamps size" in markdown
+
+
+def test_radius_sweep_gets_error_and_speed_against_radius(tmp_path):
+    sweep = tmp_path / "radius"
+    for number, (radius, mse, ms) in enumerate([(0.023, 0.05, 3.0), (0.035, 0.02, 5.0), (0.058, 0.03, 12.0)]):
+        results = _ok(64, 5, mse=mse, ms=ms, radius=radius)
+        results["name"] = f"model.radius={radius}"
+        _job(sweep, number, results)
+    _job(sweep, 3, {"status": "failed", "error": "RuntimeError: out of memory", "name": "model.radius=0.1",
+                    "model_config": {"latent_size": 64, "mp_steps": 5, "radius": 0.1}})  # fmt: skip
+    jobs = load_sweep(sweep)
+    assert swept_axes(jobs) == ["radius"]
+    outputs = build_report(sweep, wandb_mode="disabled")
+    assert iio.imread(outputs["radius"]).ndim == 3
+    grid = iio.imread(outputs["grid"])
+    assert grid.shape[1] > 2 * grid.shape[0]  # one row: 4 radii + ground truth
+    markdown = outputs["markdown"].read_text()
+    assert "Swept: radius." in markdown and "R=0.023, R=0.035" in markdown
+    assert "RuntimeError: out of memory" in markdown
+
+
+def test_cli_prints_the_table(grid_sweep, capsys):
+    assert main([str(grid_sweep), "--wandb", "disabled", "--highlight", "none"]) == 0
+    printed = capsys.readouterr().out
+    assert "# Sweep report: unit" in printed and "grid:" in printed
+
+
+def test_missing_or_empty_directories_say_so(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such multirun directory"):
+        load_sweep(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match="no job folders"):
+        load_sweep(tmp_path / "empty")
