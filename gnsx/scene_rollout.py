@@ -32,13 +32,13 @@ import numpy as np
 import torch
 import yaml
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.errors import DataError
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.mpm.generate import check_scene, initial_state
 from gnsx.mpm.presets import Preset
-from gnsx.mpm.scenes import Scene, ramp_particles, water_particles
+from gnsx.mpm.scenes import Scene
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -63,38 +63,6 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(scene.to_dict(), sort_keys=False, default_flow_style=None))
     return path
-
-
-def check_scene(scene: Scene, preset: Preset, where: str = "scene") -> None:
-    """Reject scenes the model cannot start from: no water block, or a block outside the walls."""
-    lo, hi = preset.bounds
-    if not scene.blocks:
-        raise DataError(where, "no water block (add one under 'blocks')")
-    for i, block in enumerate(scene.blocks):
-        if min(block.lower) < lo or max(block.upper) > hi:
-            raise DataError(f"{where}.blocks[{i}]", f"extends outside the walls [{lo}, {hi}]^2")
-
-
-def initial_state(scene: Scene, preset: Preset, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scene's particles as the MPM generator makes them: water first (type 5), then ramps (type 3).
-
-    Returns:
-        ``position [N, 2]`` float32 (m), ``velocity [N, 2]`` float32 (m/s; 0 for ramps), ``particle_type [N]``
-        int64.
-    """
-    rng = np.random.default_rng(seed)
-    water, velocity = water_particles(
-        scene, preset.particle_spacing, rng, jitter=preset.jitter, clearance=preset.ramp_clearance
-    )
-    if len(water) == 0:
-        raise DataError("scene", "no water particle (every block lies inside a ramp's band)")
-    ramps = ramp_particles(scene, preset.ramp_spacing)
-    position = np.concatenate([water, ramps]).astype(np.float32)
-    velocity = np.concatenate([velocity, np.zeros_like(ramps)]).astype(np.float32)
-    particle_type = np.concatenate(
-        [np.full(len(water), WATER_PARTICLE_ID), np.full(len(ramps), KINEMATIC_PARTICLE_ID)]
-    ).astype(np.int64)
-    return position, velocity, particle_type
 
 
 def constant_velocity_history(

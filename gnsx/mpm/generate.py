@@ -26,6 +26,38 @@ from gnsx.mpm.scenes import Scene, ramp_particles, sample_scene, water_particles
 from gnsx.mpm.solver import MLSMPMSolver
 
 
+def check_scene(scene: Scene, preset: Preset, where: str = "scene") -> None:
+    """Reject scenes the model cannot start from: no water block, or a block outside the walls."""
+    lo, hi = preset.bounds
+    if not scene.blocks:
+        raise DataError(where, "no water block (add one under 'blocks')")
+    for i, block in enumerate(scene.blocks):
+        if min(block.lower) < lo or max(block.upper) > hi:
+            raise DataError(f"{where}.blocks[{i}]", f"extends outside the walls [{lo}, {hi}]^2")
+
+
+def initial_state(scene: Scene, preset: Preset, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The scene's particles as the MPM generator makes them: water first (type 5), then ramps (type 3).
+
+    Returns:
+        ``position [N, 2]`` float32 (m), ``velocity [N, 2]`` float32 (m/s; 0 for ramps), ``particle_type [N]``
+        int64.
+    """
+    rng = np.random.default_rng(seed)
+    water, velocity = water_particles(
+        scene, preset.particle_spacing, rng, jitter=preset.jitter, clearance=preset.ramp_clearance
+    )
+    if len(water) == 0:
+        raise DataError("scene", "no water particle (every block lies inside a ramp's band)")
+    ramps = ramp_particles(scene, preset.ramp_spacing)
+    position = np.concatenate([water, ramps]).astype(np.float32)
+    velocity = np.concatenate([velocity, np.zeros_like(ramps)]).astype(np.float32)
+    particle_type = np.concatenate(
+        [np.full(len(water), WATER_PARTICLE_ID), np.full(len(ramps), KINEMATIC_PARTICLE_ID)]
+    ).astype(np.int64)
+    return position, velocity, particle_type
+
+
 def run_scene(
     scene: Scene, preset: Preset, seed: int, device: str | torch.device = "cpu"
 ) -> tuple[Trajectory, MLSMPMSolver]:
@@ -34,30 +66,22 @@ def run_scene(
     The solver is returned for its diagnostics (``J``, ``ramp_corrections``, ``wall_clamps``).
     See :func:`simulate_scene` for the arguments and the trajectory layout.
     """
-    lo, hi = preset.bounds
-    for i, block in enumerate(scene.blocks):
-        if min(block.lower) < lo or max(block.upper) > hi:
-            raise DataError(f"scene.blocks[{i}]", f"extends outside the walls [{lo}, {hi}]^2")
-    rng = np.random.default_rng(seed)
-    water, velocity = water_particles(
-        scene, preset.particle_spacing, rng, jitter=preset.jitter, clearance=preset.ramp_clearance
-    )
-    if len(water) == 0:
-        raise DataError("scene", "no water particle (no block, or every block lies inside a ramp's band)")
-    ramps = ramp_particles(scene, preset.ramp_spacing)
+    check_scene(scene, preset)
+    initial_position, velocity, particle_type = initial_state(scene, preset, seed)
+    water = particle_type == WATER_PARTICLE_ID
+    ramps = initial_position[~water]
     solver = MLSMPMSolver(
-        water, velocity, scene.ramp_array(), preset.particle_spacing, preset.solver_settings(), device=device
+        initial_position[water],
+        velocity[water],
+        scene.ramp_array(),
+        preset.particle_spacing,
+        preset.solver_settings(),
+        device=device,
     )
     water_position = solver.run(preset.num_frames)  # [T, N_water, 2] float32
     # Ramps are static: the same positions in every frame, after the water (as scene_particles orders them).
     ramp_position = np.broadcast_to(ramps.astype(np.float32), (preset.num_frames, *ramps.shape))
     position = np.ascontiguousarray(np.concatenate([water_position, ramp_position], axis=1))
-    particle_type = np.concatenate(
-        [
-            np.full(len(water), WATER_PARTICLE_ID, np.int64),
-            np.full(len(ramps), KINEMATIC_PARTICLE_ID, np.int64),
-        ]
-    )
     return Trajectory(position=position, particle_type=particle_type, key=0), solver
 
 
