@@ -51,7 +51,7 @@ data: install ## Generate the small default preset into data/small
 data-waterramps: install ## Generate the full WaterRamps-like preset (1000/100/100 x 601 frames; hours)
 	$(PY) -m gnsx.data generate --preset waterramps --out data/waterramps
 
-PRETRAIN_DIR := outputs/pretrain/small
+PRETRAIN_DIR ?= outputs/pretrain/small
 pretrain: install ## Train the shipped weights (train=pretrain, 100k steps, hours on CPU; rerun to resume), then ship them
 	$(PY) train.py train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false \
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))

@@ -13,6 +13,7 @@ import lightning as L
 import torch
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.evaluate import onestep_mse
 from gnsx.metrics import position_mse
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
@@ -118,7 +119,7 @@ class GNSSystem(L.LightningModule):
 def evaluate_trajectory(
     simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, onestep_stride: int = 10
 ) -> dict[str, float]:
-    """Rollout and one-step position MSE of one trajectory.
+    """Rollout and one-step position MSE of one trajectory (the validation metrics).
 
     Args:
         position: ``[T, N, D]`` ground-truth positions.
@@ -126,24 +127,16 @@ def evaluate_trajectory(
     Returns:
         ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
         starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
-        steps from ground-truth inputs, on every ``onestep_stride``-th frame (batched into one graph).
+        steps from ground-truth inputs on every ``onestep_stride``-th frame
+        (:func:`gnsx.evaluate.onestep_mse`).
     """
     frames = simulator.input_frames
     position = position.to(simulator.acc_std.device)
     particle_type = particle_type.to(position.device)
     dynamic = particle_type != KINEMATIC_PARTICLE_ID
-    num_steps = position.shape[0] - frames
-    predicted = rollout(simulator, position[:frames].transpose(0, 1), particle_type, num_steps)
-    rollout_error = position_mse(predicted, position[frames:], dynamic)
-
-    # One-step: inputs p[k-H..k] for k = H, H+stride, ...; all of them as one batch of disjoint graphs.
-    starts = torch.arange(0, num_steps, onestep_stride, device=position.device)
-    windows = torch.stack([position[s : s + frames] for s in starts.tolist()])  # [K, H+1, N, D]
-    k, _, n, d = windows.shape
-    sequence = windows.permute(0, 2, 1, 3).reshape(k * n, frames, d)
-    graph = torch.arange(k, device=position.device).repeat_interleave(n)
-    next_position = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph).reshape(
-        k, n, d
-    )
-    onestep_error = position_mse(next_position, position[starts + frames], dynamic)
-    return {"rollout_mse": rollout_error, "onestep_mse": onestep_error}
+    initial = position[:frames].transpose(0, 1)
+    predicted = rollout(simulator, initial, particle_type, position.shape[0] - frames)
+    return {
+        "rollout_mse": position_mse(predicted, position[frames:], dynamic),
+        "onestep_mse": onestep_mse(simulator, position, particle_type, stride=onestep_stride),
+    }
