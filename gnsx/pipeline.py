@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ from lightning.fabric.utilities.rank_zero import rank_zero_only
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, TQDMProgressBar
 from omegaconf import DictConfig, OmegaConf
 
+from gnsx.atomic import atomic_path
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.datamodule import ParticleDataModule
@@ -531,6 +531,5 @@ def run_training(cfg: DictConfig) -> float | None:
 
 def write_json(path: Path, payload: dict) -> None:
     """Write JSON atomically (temp file, then rename)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2))

@@ -18,15 +18,16 @@ from pathlib import Path
 
 import torch
 
+from gnsx.atomic import atomic_path
+
 
 def strip_checkpoint(src: Path, dst: Path) -> dict:
     """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header."""
     state = torch.load(src, map_location="cpu", weights_only=False)
     wanted = ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
     keep = {k: state[k] for k in wanted if k in state}
-    tmp = dst.with_suffix(".tmp")
-    torch.save(keep, tmp)
-    tmp.replace(dst)
+    with atomic_path(dst) as tmp:
+        torch.save(keep, tmp)
     return {"global_step": int(state.get("global_step", 0)), "source": str(src)}
 
 

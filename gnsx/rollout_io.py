@@ -26,13 +26,13 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gnsx.atomic import atomic_path
 from gnsx.errors import DataError
 
 _REQUIRED = ("predicted", "particle_type", "input_frames", "metadata")
@@ -107,14 +107,9 @@ def save_rollout(path: str | os.PathLike, rollout: Rollout) -> Path:
     }
     if rollout.ground_truth is not None:
         arrays["ground_truth"] = rollout.ground_truth
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    # A file object, so numpy adds no ".npz" to the temporary name.
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
     return path
 
 

@@ -22,7 +22,6 @@ import json
 import math
 import numbers
 import os
-import tempfile
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from gnsx.atomic import atomic_path
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.trajectory import Trajectory
 from gnsx.errors import DataError
@@ -96,16 +96,10 @@ class Metadata:
         """Write ``metadata.json`` atomically (temp file in the same folder, then ``os.replace``)."""
         path = Path(path)
         text = json.dumps(self.to_dict(), indent=2, default=_plain_or_fail) + "\n"
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(path) as tmp, open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
 
     @classmethod
     def load(cls, path: str | os.PathLike, *, partial: bool = False) -> Metadata:

@@ -14,13 +14,13 @@ LagrangeBench's ids (``NodeType``: 0 fluid, 1 solid wall, 2 moving wall, 3 rigid
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from gnsx.atomic import atomic_path
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
 from gnsx.errors import DataError
@@ -82,20 +82,13 @@ def write_h5(path: str | os.PathLike, trajectories: Iterable[Trajectory]) -> int
     Groups are named by position (LagrangeBench's convention); each also gets the attribute ``key``.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
     count = 0
-    try:
-        with h5py.File(tmp, "w") as f:
-            for i, traj in enumerate(trajectories):
-                check_trajectory(traj, trajectory_where(path, i))
-                group = f.create_group(f"{i:05d}")
-                group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))
-                group.create_dataset("particle_type", data=np.asarray(traj.particle_type, dtype=np.int64))
-                group.attrs["key"] = int(traj.key)
-                count += 1
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        for i, traj in enumerate(trajectories):
+            check_trajectory(traj, trajectory_where(path, i))
+            group = f.create_group(f"{i:05d}")
+            group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))
+            group.create_dataset("particle_type", data=np.asarray(traj.particle_type, dtype=np.int64))
+            group.attrs["key"] = int(traj.key)
+            count += 1
     return count

@@ -21,7 +21,6 @@ from __future__ import annotations
 import os
 import pickle
 import re
-import tempfile
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator
@@ -29,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gnsx.atomic import atomic_path
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
 from gnsx.errors import DataError
@@ -122,25 +122,21 @@ def write_npz(path: str | os.PathLike, trajectories: Iterable[Trajectory]) -> in
         DataError: a bad trajectory, or two trajectories with the same key (member names would collide).
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
     seen: set[int] = set()
-    try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
-            for i, traj in enumerate(trajectories):
-                where = trajectory_where(path, i)
-                check_trajectory(traj, where)
-                key = int(traj.key)
-                if key in seen:
-                    raise DataError(where, f"duplicate key {key}: npz member names must be unique")
-                seen.add(key)
-                item = np.empty(2, dtype=object)
-                item[0] = np.ascontiguousarray(traj.position, dtype=np.float32)
-                item[1] = np.ascontiguousarray(traj.particle_type, dtype=np.int64)
-                with zf.open(f"{MEMBER_PREFIX}{key}.npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, item, allow_pickle=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with (
+        atomic_path(path) as tmp,
+        zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf,
+    ):
+        for i, traj in enumerate(trajectories):
+            where = trajectory_where(path, i)
+            check_trajectory(traj, where)
+            key = int(traj.key)
+            if key in seen:
+                raise DataError(where, f"duplicate key {key}: npz member names must be unique")
+            seen.add(key)
+            item = np.empty(2, dtype=object)
+            item[0] = np.ascontiguousarray(traj.position, dtype=np.float32)
+            item[1] = np.ascontiguousarray(traj.particle_type, dtype=np.int64)
+            with zf.open(f"{MEMBER_PREFIX}{key}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, item, allow_pickle=True)
     return len(seen)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import os
 import struct
-import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -33,6 +32,7 @@ import numpy as np
 from google.protobuf.message import DecodeError
 from tfrecord import example_pb2
 
+from gnsx.atomic import atomic_path
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
 from gnsx.errors import DataError
@@ -173,16 +173,10 @@ def write_tfrecord(path: str | os.PathLike, trajectories: Iterable[Trajectory]) 
     Each trajectory is validated first; ``step_context`` is never written.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        count = 0
-        with os.fdopen(fd, "wb") as f:
-            for i, traj in enumerate(trajectories):
-                check_trajectory(traj, trajectory_where(path, i))
-                write_record(f, encode_trajectory(traj))
-                count += 1
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    count = 0
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        for i, traj in enumerate(trajectories):
+            check_trajectory(traj, trajectory_where(path, i))
+            write_record(f, encode_trajectory(traj))
+            count += 1
     return count

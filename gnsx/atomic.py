@@ -1,0 +1,27 @@
+"""Atomic file writes: nothing half-written is ever left at a target path."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path in ``path``'s folder; rename it onto ``path`` when the block succeeds.
+
+    On any error (including KeyboardInterrupt) the temporary file is removed and ``path`` is untouched.
+    Same folder, so ``os.replace`` is an atomic rename on one filesystem.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
