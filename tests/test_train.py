@@ -43,7 +43,7 @@ class _FakeDataModule:
     )
 
 
-@pytest.mark.parametrize("model", ["simplified", "original"])
+@pytest.mark.parametrize("model", ["simplified", "simplified_wall10", "original"])
 @pytest.mark.parametrize(
     "group",
     [
@@ -75,6 +75,15 @@ def test_model_configs_match_the_paper_table():
     assert simplified["type_encoding"] == "scalar" and original["type_encoding"] == "embedding"
     assert simplified["wall_clip"] == (0.0, 1.0) and original["wall_clip"] == (-1.0, 1.0)
     assert not simplified["edge_residual"] and original["edge_residual"]
+
+
+def test_default_model_is_the_simplified_one_with_a_longer_wall_feature():
+    default = architecture(_compose([]).model)
+    paper = architecture(_compose(["model=simplified"]).model)
+    assert default["wall_clip"] == (0.0, 10.0) and paper["wall_clip"] == (0.0, 1.0)
+    assert {k: v for k, v in default.items() if k not in ("name", "wall_clip")} == {
+        k: v for k, v in paper.items() if k not in ("name", "wall_clip")
+    }
 
 
 def _run_train(tmp_path: Path, dataset: Path, name: str, extra: list[str]) -> Path:
@@ -136,6 +145,7 @@ def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
         "wb",
         [
             "logger=wandb",
+            "train.loss=huber",  # the config path of the optional loss
             "train.max_steps=2",
             "train.val_every_n_steps=2",
             "train.max_time=null",
