@@ -4,7 +4,8 @@ DEST_DIR (e.g. ``pretrained/small``) receives what a user needs to trust and use
 for git: ``model.ckpt`` (weights and hyperparameters, no optimizer state: ~0.7 MB for the simplified model;
 ``GNSSystem.load_from_checkpoint`` reads it), ``config.yaml`` (the run's composed Hydra config),
 ``metrics.csv`` (the whole training curve, every restart concatenated), ``results.json`` (test metrics when
-the run wrote them) and ``training_curve.png``.
+the run wrote them), ``training_curve.png`` and the training dataset's ``metadata.json`` (bounds, dt and
+statistics: what evaluating the weights on new scenes needs besides the weights).
 """
 
 from __future__ import annotations
@@ -61,6 +62,14 @@ def plot_curve(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _data_root(config: Path) -> Path | None:
+    """The dataset folder named by a run's composed config (``data.root``), or None."""
+    from omegaconf import OmegaConf
+
+    root = OmegaConf.select(OmegaConf.load(config), "data.root", default=None)
+    return Path(root) if root else None
+
+
 def export(run_dir: Path, dest: Path, checkpoint: Path | None = None) -> dict:
     """Write the shipped-weights folder for ``run_dir`` (its ``checkpoints/last.ckpt`` unless given)."""
     checkpoint = checkpoint or run_dir / "checkpoints" / "last.ckpt"
@@ -71,6 +80,9 @@ def export(run_dir: Path, dest: Path, checkpoint: Path | None = None) -> dict:
     config = run_dir / ".hydra" / "config.yaml"
     if config.is_file():
         shutil.copy(config, dest / "config.yaml")
+        data_root = _data_root(config)
+        if data_root is not None and (data_root / "metadata.json").is_file():
+            shutil.copy(data_root / "metadata.json", dest / "metadata.json")
     rows = merge_curves(run_dir)
     if rows:
         fields = sorted({k for r in rows for k in r})
