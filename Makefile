@@ -57,7 +57,7 @@ PRETRAIN_ARGS ?= 'model.wall_clip=[0.0,10.0]'
 pretrain: install ## Train the shipped weights (train=pretrain, 100k steps, hours on CPU; rerun to resume), then ship them
 	$(PY) train.py train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(PRETRAIN_ARGS) \
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
-	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small
+	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
 
 SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)

@@ -15,6 +15,7 @@ import csv
 import json
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import torch
@@ -70,9 +71,43 @@ def _data_root(config: Path) -> Path | None:
     return Path(root) if root else None
 
 
-def export(run_dir: Path, dest: Path, checkpoint: Path | None = None) -> dict:
-    """Write the shipped-weights folder for ``run_dir`` (its ``checkpoints/last.ckpt`` unless given)."""
-    checkpoint = checkpoint or run_dir / "checkpoints" / "last.ckpt"
+def best_validation_checkpoint(run_dir: Path) -> tuple[Path, float]:
+    """The saved checkpoint whose validation rollout MSE was lowest, and that MSE.
+
+    Validation logged at step ``s`` scored the model saved as ``step{s + 1:08d}.ckpt`` (Lightning logs at the
+    step before the optimizer step count it saves under)."""
+    saved = {int(p.stem[4:]): p for p in (run_dir / "checkpoints").rglob("step*.ckpt")}
+    scored = [
+        (float(r["val/rollout_mse"]), int(r["step"]) + 1)
+        for r in merge_curves(run_dir)
+        if r.get("val/rollout_mse") and int(r["step"]) + 1 in saved
+    ]
+    if not scored:
+        raise FileNotFoundError(f"{run_dir}: no saved checkpoint has a logged validation rollout MSE")
+    mse, step = min(scored)
+    return saved[step], mse
+
+
+def score_on_test_split(checkpoint: Path, data_root: Path, work_dir: Path) -> dict:
+    """Test-split metrics of a checkpoint in the layout of a run's ``results.json`` (``test``, ``rows``)."""
+    from gnsx.evaluate import evaluate_checkpoints
+
+    payload = evaluate_checkpoints([checkpoint], data_root, work_dir, render=False, save_rollouts=False)
+    model = payload["models"][0]
+    return {"parameters": model["parameters"], "test": model["summary"], "rows": model["rows"]}
+
+
+def export(run_dir: Path, dest: Path, checkpoint: Path | None = None, select_best_val: bool = False) -> dict:
+    """Write the shipped-weights folder for ``run_dir``: its ``checkpoints/last.ckpt``, the given checkpoint,
+    or (``select_best_val``) the saved checkpoint with the lowest validation rollout MSE. Any checkpoint other
+    than the last is evaluated on the test split here, so ``results.json`` always describes the shipped
+    weights."""
+    selected = None
+    if select_best_val:
+        checkpoint, val_mse = best_validation_checkpoint(run_dir)
+        selected = {"by": "lowest validation rollout MSE", "val_rollout_mse": val_mse}
+    last = run_dir / "checkpoints" / "last.ckpt"
+    checkpoint = checkpoint or last
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no checkpoint to export")
     dest.mkdir(parents=True, exist_ok=True)
@@ -92,11 +127,23 @@ def export(run_dir: Path, dest: Path, checkpoint: Path | None = None) -> dict:
             writer.writerows(rows)
         plot_curve(rows, dest / "training_curve.png")
     results = run_dir / "results.json"
-    if results.is_file():
-        payload = json.loads(results.read_text())
-        payload.pop("pretrained", None)  # the previous shipped weights' numbers are not this model's
-        payload["checkpoint"] = info
-        (dest / "results.json").write_text(json.dumps(payload, indent=2))
+    payload = json.loads(results.read_text()) if results.is_file() else {}
+    payload.pop("pretrained", None)  # the previous shipped weights' numbers are not this model's
+    if checkpoint.resolve() != last.resolve():
+        # The run's own test numbers describe its last checkpoint: keep them aside, score the shipped one.
+        payload["last_checkpoint_test"] = payload.pop("test", None)
+        payload.pop("rows", None)
+        data_root = _data_root(config) if config.is_file() else None
+        if data_root is None:
+            raise FileNotFoundError(f"{config}: no data.root to evaluate {checkpoint} on")
+        with tempfile.TemporaryDirectory() as work:
+            payload.update(score_on_test_split(checkpoint, data_root, Path(work)))
+    payload["checkpoint"] = info
+    if selected:
+        payload["checkpoint"]["selected"] = selected
+    if payload:
+        with atomic_path(dest / "results.json") as tmp:
+            Path(tmp).write_text(json.dumps(payload, indent=2))
     return info
 
 
@@ -104,10 +151,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gnsx.pretrained", description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("dest", type=Path)
-    parser.add_argument("--checkpoint", type=Path, default=None)
+    choice = parser.add_mutually_exclusive_group()
+    choice.add_argument("--checkpoint", type=Path, default=None, help="default: the run's last.ckpt")
+    choice.add_argument(
+        "--select-best-val",
+        action="store_true",
+        help="the saved checkpoint with the lowest validation rollout MSE",
+    )
     args = parser.parse_args(argv)
     try:
-        info = export(args.run_dir, args.dest, args.checkpoint)
+        info = export(args.run_dir, args.dest, args.checkpoint, args.select_best_val)
     except FileNotFoundError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -1,0 +1,94 @@
+"""The shipped weights (``pretrained/small``, written by ``make pretrain``) are complete, match their config,
+were trained for at least 10x the demo's steps, and reproduce their recorded test rollout on a trajectory
+regenerated here with the MPM solver."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from gnsx.data.metadata import Metadata
+from gnsx.evaluate import load_simulator, score_trajectory
+from gnsx.mpm.generate import simulate_split_item
+from gnsx.mpm.presets import get_preset
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "pretrained" / "small"
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    results = json.loads((SHIPPED / "results.json").read_text())
+    return results, OmegaConf.load(SHIPPED / "config.yaml")
+
+
+def test_shipped_folder_is_complete_and_small():
+    for name in (
+        "model.ckpt",
+        "config.yaml",
+        "metadata.json",
+        "metrics.csv",
+        "results.json",
+        "training_curve.png",
+    ):
+        assert (SHIPPED / name).is_file(), name
+    assert (SHIPPED / "model.ckpt").stat().st_size < 2_000_000  # weights only, no optimizer state
+
+
+def test_shipped_weights_match_their_config_and_budget(shipped):
+    results, config = shipped
+    simulator = load_simulator(SHIPPED / "model.ckpt")
+    assert simulator.num_parameters() == results["parameters"]
+    assert simulator.wall_clip == tuple(config.model.wall_clip)
+    for key in ("latent_size", "mp_steps", "history", "type_encoding"):
+        assert simulator.config[key] == config.model[key], key
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        demo_steps = compose(config_name="config").train.max_steps
+    # The run trained for at least 10x the demo's steps; validation chose which of its checkpoints ships.
+    assert results["train_steps"] >= 10 * demo_steps
+    state = torch.load(SHIPPED / "model.ckpt", map_location="cpu", weights_only=False)
+    assert state["global_step"] == results["checkpoint"]["global_step"] <= results["train_steps"]
+    assert "optimizer_states" not in state
+    assert results["test"]["rollout_mse"] < results["test"]["baseline_mse"]
+
+
+def test_shipped_weights_reproduce_their_test_rollout(shipped):
+    results, config = shipped
+    simulator = load_simulator(SHIPPED / "model.ckpt")
+    metadata = Metadata.load(SHIPPED / "metadata.json")
+    trajectory = simulate_split_item(
+        get_preset(config.data.preset), int(config.data.generate_seed), "test", 0
+    )
+    row = score_trajectory(
+        simulator,
+        torch.as_tensor(trajectory.position),
+        torch.as_tensor(trajectory.particle_type),
+        metadata,
+        emd_every=0,
+        timing_repeats=0,
+    ).row
+    recorded = next(r for r in results["rows"] if r["trajectory"] == 0)
+    assert row["baseline_mse"] == pytest.approx(recorded["baseline_mse"], rel=1e-4)  # the same trajectory
+    assert row["onestep_mse"] == pytest.approx(recorded["onestep_mse"], rel=0.02)
+    # A 250-frame rollout of splashing water amplifies float rounding (thread counts, CPU), so the whole
+    # rollout is compared loosely; a changed feature or model code would miss by far more.
+    assert row["rollout_mse"] == pytest.approx(recorded["rollout_mse"], rel=0.25)
+
+
+def test_best_validation_checkpoint_matches_logged_step_to_saved_file(tmp_path):
+    from gnsx.pretrained import best_validation_checkpoint
+
+    run = tmp_path / "run"
+    (run / "checkpoints" / "permanent").mkdir(parents=True)
+    (run / "csv" / "version_0").mkdir(parents=True)
+    for step in (10, 20, 30):
+        (run / "checkpoints" / "permanent" / f"step{step:08d}.ckpt").write_bytes(b"")
+    rows = ["step,train/loss,val/rollout_mse", "9,1.0,", "9,,0.5", "19,,0.2", "29,,0.3", "39,,0.1"]
+    (run / "csv" / "version_0" / "metrics.csv").write_text("\n".join(rows) + "\n")
+    path, mse = best_validation_checkpoint(run)  # step 40 scored best but was not saved
+    assert path.name == "step00000020.ckpt" and mse == 0.2
