@@ -110,7 +110,32 @@ def export(run_dir: Path, dest: Path, checkpoint: Path | None = None, select_bes
     checkpoint = checkpoint or last
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no checkpoint to export")
-    dest.mkdir(parents=True, exist_ok=True)
+    # Everything is written into a staging folder beside ``dest`` and swapped in at the end, so a failure
+    # (say, in the test evaluation) leaves the weights shipped before untouched.
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
+    staging.chmod(0o755)  # mkdtemp makes it private; the shipped folder is an ordinary one
+    try:
+        info = _write_folder(run_dir, staging, checkpoint, last, selected)
+        _replace_folder(staging, dest)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return info
+
+
+def _replace_folder(new: Path, dest: Path) -> None:
+    """Put folder ``new`` where ``dest`` is (two renames; the old folder is removed last)."""
+    old = dest.with_name(f".{dest.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if dest.exists():
+        dest.rename(old)
+    new.rename(dest)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selected: dict | None) -> dict:
+    """The files of :func:`export`, written into the (empty) folder ``dest``."""
     info = strip_checkpoint(checkpoint, dest / "model.ckpt")
     config = run_dir / ".hydra" / "config.yaml"
     if config.is_file():
@@ -142,8 +167,7 @@ def export(run_dir: Path, dest: Path, checkpoint: Path | None = None, select_bes
     if selected:
         payload["checkpoint"]["selected"] = selected
     if payload:
-        with atomic_path(dest / "results.json") as tmp:
-            Path(tmp).write_text(json.dumps(payload, indent=2))
+        (dest / "results.json").write_text(json.dumps(payload, indent=2))
     return info
 
 

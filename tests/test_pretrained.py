@@ -92,3 +92,26 @@ def test_best_validation_checkpoint_matches_logged_step_to_saved_file(tmp_path):
     (run / "csv" / "version_0" / "metrics.csv").write_text("\n".join(rows) + "\n")
     path, mse = best_validation_checkpoint(run)  # step 40 scored best but was not saved
     assert path.name == "step00000020.ckpt" and mse == 0.2
+
+
+def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
+    from gnsx.pretrained import export
+
+    run = tmp_path / "run"
+    (run / "checkpoints" / "permanent").mkdir(parents=True)
+    (run / ".hydra").mkdir()
+    (run / ".hydra" / "config.yaml").write_text("model: {}\n")  # no data.root: the test evaluation cannot run
+    torch.save({"state_dict": {}, "global_step": 5}, run / "checkpoints" / "last.ckpt")
+    torch.save({"state_dict": {}, "global_step": 4}, run / "checkpoints" / "permanent" / "step00000004.ckpt")
+    dest = tmp_path / "shipped"
+    dest.mkdir()
+    (dest / "model.ckpt").write_bytes(b"previous weights")
+    with pytest.raises(FileNotFoundError, match="data.root"):
+        export(run, dest, checkpoint=run / "checkpoints" / "permanent" / "step00000004.ckpt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "shipped"]  # no staging folder left
+    assert [p.name for p in dest.iterdir()] == ["model.ckpt"]
+    assert (dest / "model.ckpt").read_bytes() == b"previous weights"
+    info = export(run, dest)  # the last checkpoint needs no evaluation: it replaces the folder
+    assert info["global_step"] == 5
+    assert torch.load(dest / "model.ckpt", weights_only=False)["global_step"] == 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "shipped"]
