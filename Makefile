@@ -52,10 +52,8 @@ data-waterramps: install ## Generate the full WaterRamps-like preset (1000/100/1
 	$(PY) -m gnsx.data generate --preset waterramps --out data/waterramps
 
 PRETRAIN_DIR ?= outputs/pretrain/small
-# The wall-distance feature reaches 10 R (not the paper's 1 R): see README, "Status", for the measurement.
-PRETRAIN_ARGS ?= 'model.wall_clip=[0.0,10.0]'
 pretrain: install ## Train the shipped weights (train=pretrain, 100k steps, hours on CPU; rerun to resume), then ship them
-	$(PY) train.py train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(PRETRAIN_ARGS) \
+	$(PY) train.py train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(ARGS) \
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
 	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
 

@@ -92,8 +92,8 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         lr_final=float(train.lr_final),
         lr_decay_start=int(train.lr_decay_start),
         lr_decay_end=int(train.lr_decay_end),
-        loss=str(train.get("loss", "mse")),
-        huber_delta=float(train.get("huber_delta", 1.0)),
+        loss=str(train.loss),
+        huber_delta=float(train.huber_delta),
     )
 
 

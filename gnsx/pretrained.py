@@ -138,9 +138,9 @@ def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selec
     """The files of :func:`export`, written into the (empty) folder ``dest``."""
     info = strip_checkpoint(checkpoint, dest / "model.ckpt")
     config = run_dir / ".hydra" / "config.yaml"
+    data_root = _data_root(config) if config.is_file() else None
     if config.is_file():
         shutil.copy(config, dest / "config.yaml")
-        data_root = _data_root(config)
         if data_root is not None and (data_root / "metadata.json").is_file():
             shutil.copy(data_root / "metadata.json", dest / "metadata.json")
     rows = merge_curves(run_dir)
@@ -158,7 +158,6 @@ def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selec
         # The run's own test numbers describe its last checkpoint: keep them aside, score the shipped one.
         payload["last_checkpoint_test"] = payload.pop("test", None)
         payload.pop("rows", None)
-        data_root = _data_root(config) if config.is_file() else None
         if data_root is None:
             raise FileNotFoundError(f"{config}: no data.root to evaluate {checkpoint} on")
         with tempfile.TemporaryDirectory() as work:
@@ -166,8 +165,7 @@ def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selec
     payload["checkpoint"] = info
     if selected:
         payload["checkpoint"]["selected"] = selected
-    if payload:
-        (dest / "results.json").write_text(json.dumps(payload, indent=2))
+    (dest / "results.json").write_text(json.dumps(payload, indent=2))
     return info
 
 

@@ -133,9 +133,8 @@ class GNSSystem(L.LightningModule):
         # Averaged over dynamic particles: static particles are never moved by the model, so they are not in
         # the loss.
         dynamic = batch.particle_type != KINEMATIC_PARTICLE_ID
-        # .get: checkpoints written before the loss was configurable trained with MSE.
-        kind, delta = self.hparams.get("loss", "mse"), self.hparams.get("huber_delta", 1.0)
-        loss = acceleration_loss(predicted[dynamic], target[dynamic], kind, delta)
+        h = self.hparams
+        loss = acceleration_loss(predicted[dynamic], target[dynamic], h.loss, h.huber_delta)
         size = int(batch.num_graphs)
         self.log("train/loss", loss, prog_bar=True, batch_size=size)
         self.log("train/noise_std", std, batch_size=size)
