@@ -20,7 +20,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx.evaluate import checkpoint_path, load_simulator, model_label
+from gnsx.checkpoints import checkpoint_path, load_simulator, model_label
 from gnsx.mpm.presets import get_preset
 from gnsx.mpm.scenes import Scene
 from gnsx.scene_rollout import load_scene, simulate_to_folder

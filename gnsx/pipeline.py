@@ -31,12 +31,14 @@ from lightning.fabric.utilities.rank_zero import rank_zero_only
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, TQDMProgressBar
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx.atomic import atomic_path
+from gnsx.atomic import write_json
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.datamodule import ParticleDataModule
+from gnsx.evaluate import evaluate_run
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.system import GNSSystem
+from gnsx.time_budget import TimeBudget, parse_duration
 
 log = logging.getLogger("gnsx")
 
@@ -67,9 +69,13 @@ def ensure_dataset(data_cfg: DictConfig) -> Path:
             f"`python -m gnsx.data convert SRC {root}`."
         )
     from gnsx.mpm.generate import generate_dataset
+    from gnsx.mpm.presets import get_preset
 
-    log.info("Generating the '%s' preset into %s (first use)", data_cfg.preset, root)
-    generate_dataset(root, data_cfg.preset, seed=data_cfg.generate_seed)
+    counts = OmegaConf.select(data_cfg, "trajectories", default=None)
+    overrides = {} if counts is None else {"trajectories": dict(OmegaConf.to_container(counts, resolve=True))}
+    preset = get_preset(data_cfg.preset, **overrides)
+    log.info("Generating the '%s' preset %s into %s (first use)", preset.name, preset.trajectories, root)
+    generate_dataset(root, preset, seed=data_cfg.generate_seed)
     return root
 
 
@@ -428,7 +434,7 @@ def _finish_wandb(results: dict) -> None:
 def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: list) -> float | None:
     """Train, then evaluate on the test split; fills ``record`` and ``loggers`` as it goes (they survive a
     failure). Returns the test rollout MSE (None when evaluation is off)."""
-    threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None)
+    threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None) or cfg.get("threads")
     if threads:
         # Parallel jobs on one machine (the joblib launcher): n_jobs x threads should not exceed the cores.
         torch.set_num_threads(int(threads))
@@ -450,7 +456,12 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
     record["model_config"] = model_summary(cfg, system)
     record["parameters"] = system.simulator.num_parameters()
     clock = TrainingClock()
-    trainer = build_trainer(cfg, run_dir, loggers, callbacks=[clock, DivergenceGuard()])
+    callbacks = [clock, DivergenceGuard()]
+    if cfg.train.get("fit_to_max_time", False) and cfg.train.max_time is not None:
+        callbacks.append(
+            TimeBudget(parse_duration(cfg.train.max_time), int(cfg.train.get("calibration_steps", 200)))
+        )
+    trainer = build_trainer(cfg, run_dir, loggers, callbacks=callbacks)
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:
         trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))
@@ -460,8 +471,6 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
         return None
     # The benchmark runs where the model trained (Lightning moves it back to the CPU after fit).
     device = trainer.strategy.root_device
-    from gnsx.evaluate import evaluate_run
-
     summary = evaluate_run(cfg, system.simulator, datamodule, run_dir, loggers)
     check_finite_rollout(summary)
     frame = OmegaConf.select(cfg, "sweep.frame", default=None)
@@ -529,9 +538,3 @@ def run_training(cfg: DictConfig) -> float | None:
         if cfg.logger.wandb:
             _finish_wandb(results)
     return result
-
-
-def write_json(path: Path, payload: dict) -> None:
-    """Write JSON atomically (temp file, then rename)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2))

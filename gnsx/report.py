@@ -7,10 +7,12 @@ Outputs (in ``<sweep dir>/report/``):
 
 * ``grid.png``: one frame of each job's first test rollout, rows the embedding size and columns the
   message-passing count (figure 9: capacity falls from top left to bottom right), each cell annotated with
-  ms/frame, MB and rollout MSE, the paper's 64/5 cell framed in green, failed jobs with their reason, and the
-  ground truth's frame for reference. A sweep of one parameter (e.g. the radius) gives one row.
-* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log), the Pareto front marked (no other job
-  is both faster and more accurate).
+  ms/frame, MB, rollout MSE ± its standard error, the baseline ratio with its interval and whether it can be
+  told apart from the best cell (text in red when it does not beat the physics-free baseline), the paper's
+  64/5 cell framed in green, failed jobs with their reason, and the ground truth's frame for reference. A
+  sweep of one parameter (e.g. the radius) gives one row.
+* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log) with ±1 SE error bars, the Pareto front
+  marked (no other job is both faster and more accurate), models that do not beat the baseline in red.
 * ``radius.png`` (when the radius varies): rollout and one-step error, and ms/frame, against the radius.
 * ``report.md``: the table of every job (failed ones with their reason) and the pictures; ``results.csv``.
 * ``wandb/``: an offline wandb run (group = the sweep's name) holding the table as a ``wandb.Table`` and the
@@ -18,6 +20,14 @@ Outputs (in ``<sweep dir>/report/``):
 
 Speed and memory come from the benchmark at WaterRamps size (``bench``) when every successful job has it,
 otherwise from the test rollouts (``test``); the report says which.
+
+Errors come with their spread over the test trajectories (:mod:`gnsx.spread`): ``<key>_se`` of the test
+summary, or computed from the job's per-trajectory ``rows`` when the summary predates it. The baseline ratio
+is the geometric mean of ``baseline_mse / rollout_mse`` over trajectories with its 95% t interval (the ratio
+of the means when neither is recorded); below 1 the model does not beat the physics-free baseline. Each job is
+compared with the best one (lowest mean rollout MSE): paired over the same test trajectories
+(:func:`gnsx.spread.compare`) when both have per-trajectory rows, otherwise by the overlap of mean ± 2 SE; the
+table says which (``vs_best_method``).
 
 ``results.json`` (one per job folder, written by :func:`gnsx.pipeline.run_training`)::
 
@@ -34,12 +44,14 @@ otherwise from the test rollouts (``test``); the report says which.
                     this run; ``steps_per_s``: steps per second of training (validation excluded);
                     ``job_wall_s``: the whole job (data, training, evaluation, pictures, benchmark)
     test            {rollout_mse, onestep_mse, emd, baseline_mse (data units^2, dynamic particles),
-                     ms_per_frame (rollout, graph build included), peak_memory_mb, trajectories, ...}
+                     ms_per_frame (rollout, graph build included), peak_memory_mb, trajectories, and since
+                     the spreads were added <key>_se, baseline_ratio_geomean(_lo, _hi), ...}: the summary of
+                     :func:`gnsx.scoring.summarise`
     bench           {ms_per_frame, peak_memory_mb, num_particles, spacing, device}: one inference step on a
                     packed scene of WaterRamps size at the data's particle spacing; {error} when it failed
     frame, frame_png, frame_truth_png
                     the rendered frame index of the first test rollout and its PNGs (prediction, ground truth)
-    rows            per-test-trajectory errors (from gnsx.evaluate)
+    rows            per-test-trajectory errors (:func:`gnsx.scoring.score_trajectory`; optional)
 
 A job folder without results.json (the job never started, or crashed before writing) counts as failed, with
 its model read from ``.hydra/config.yaml``.
@@ -58,6 +70,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from gnsx.spread import (
+    DOES_NOT_BEAT,
+    TIED,
+    baseline_verdict,
+    compare,
+    geometric_mean_interval,
+    mean_se,
+)
 
 #: The paper's model (figure 9's green cell): (latent size, message-passing steps).
 PAPER_CELL = (64, 5)
@@ -87,6 +108,7 @@ class Job:
     frame_png: str | None = None
     frame_truth_png: str | None = None
     sweep: str | None = None
+    rows: list[dict] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -101,6 +123,37 @@ class Job:
     @property
     def rollout_mse(self) -> float | None:
         return _number(self.test.get("rollout_mse"))
+
+    def spread(self, key: str) -> tuple[float | None, float | None]:
+        """``(mean, standard error)`` of a test error over trajectories: the summary's ``key`` and
+        ``<key>_se``, else computed from the per-trajectory rows (None where unknown)."""
+        mean, se = _number(self.test.get(key)), _number(self.test.get(f"{key}_se"))
+        if se is None and self.rows:
+            row_mean, row_se = mean_se(row.get(key) for row in self.rows)
+            mean = mean if mean is not None else _number(row_mean)
+            se = _number(row_se)
+        return mean, se
+
+    def baseline_ratio(self) -> tuple[float | None, float | None, float | None]:
+        """``(ratio, low, high)``: the geometric mean over test trajectories of ``baseline_mse / rollout_mse``
+        and its 95% interval (from the summary, else the rows); without either, the ratio of the means and no
+        interval. None where unknown."""
+        geomean = _number(self.test.get("baseline_ratio_geomean"))
+        if geomean is not None:
+            return (geomean, _number(self.test.get("baseline_ratio_geomean_lo")),
+                    _number(self.test.get("baseline_ratio_geomean_hi")))  # fmt: skip
+        ratios = [_ratio(row.get("baseline_mse"), row.get("rollout_mse")) for row in self.rows]
+        geomean, lo, hi, n = geometric_mean_interval(ratios)
+        if n:
+            return geomean, _number(lo), _number(hi)
+        ratio = _number(self.test.get("baseline_ratio"))
+        if ratio is None:
+            ratio = _ratio(self.test.get("baseline_mse"), self.rollout_mse)
+        return ratio, None, None
+
+    def versus_baseline(self) -> str | None:
+        """:func:`gnsx.spread.baseline_verdict` of :meth:`baseline_ratio` (None for a failed job)."""
+        return baseline_verdict(*self.baseline_ratio()) if self.ok else None
 
     def label(self, keys: Sequence[str]) -> str:
         """Short name from the swept values, e.g. ``64/5`` (latent/MP) or ``R=0.035``."""
@@ -118,6 +171,12 @@ def _number(value: Any) -> float | None:
     except (TypeError, ValueError):
         return None
     return number if math.isfinite(number) else None
+
+
+def _ratio(numerator: Any, denominator: Any) -> float | None:
+    """``numerator / denominator`` of two positive finite numbers, else None."""
+    a, b = _number(numerator), _number(denominator)
+    return a / b if a is not None and b is not None and a >= 0 and b > 0 else None
 
 
 def _job_config(folder: Path) -> dict:
@@ -186,6 +245,7 @@ def load_job(folder: Path) -> Job:
         frame_png=results.get("frame_png"),
         frame_truth_png=results.get("frame_truth_png"),
         sweep=results.get("sweep") or config.get("sweep", {}).get("name"),
+        rows=[row for row in results.get("rows") or [] if isinstance(row, dict)],
     )
 
 
@@ -231,12 +291,83 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     return front
 
 
+def best_job(jobs: Sequence[Job]) -> Job | None:
+    """The successful job with the lowest mean test rollout MSE (None when there is none)."""
+    candidates = [j for j in jobs if j.ok and j.rollout_mse is not None]
+    return min(candidates, key=lambda j: j.rollout_mse) if candidates else None
+
+
+def versus_best(jobs: Sequence[Job]) -> dict[int, tuple[str, str | None]]:
+    """Whether each successful job can be told apart from the best one (:func:`best_job`) on rollout MSE.
+
+    Returns:
+        ``{id(job): (verdict, method)}``: verdict ``"best"``, ``"worse"``, ``"better"`` (a paired geometric
+        mean can favour another job than the lowest mean), ``"cannot be told apart"`` or ``"unknown"`` (no
+        spread known); method ``"paired"`` (:func:`gnsx.spread.compare` over the test trajectories both
+        jobs' rows share, at least 2), ``"2se"`` (the jobs' mean ± 2 SE intervals overlap or not) or None.
+    """
+    best = best_job(jobs)
+    out: dict[int, tuple[str, str | None]] = {}
+    if best is None:
+        return out
+    best_mean, best_se = best.spread("rollout_mse")
+    for job in jobs:
+        if not job.ok or job.rollout_mse is None:
+            continue
+        if job is best:
+            out[id(job)] = ("best", None)
+            continue
+        paired = compare(best.rows, job.rows) if best.rows and job.rows else None
+        if paired is not None and paired["trajectories"] >= 2:
+            verdict = {"A better": "worse", "B better": "better"}.get(paired["verdict"], TIED)
+            out[id(job)] = (verdict, "paired")
+            continue
+        mean, se = job.spread("rollout_mse")
+        if se is None or best_se is None:
+            out[id(job)] = ("unknown", None)
+        elif abs(mean - best_mean) > 2 * (se + best_se):
+            out[id(job)] = ("worse" if mean > best_mean else "better", "2se")
+        else:
+            out[id(job)] = (TIED, "2se")
+    return out
+
+
+def _with_se(mean: float | None, se: float | None, fmt: str = ".2e") -> str:
+    if mean is None:
+        return "n/a"
+    return f"{mean:{fmt}} ± {se:.1e}" if se is not None else f"{mean:{fmt}}"
+
+
+def _ratio_text(ratio: float | None, lo: float | None, hi: float | None) -> str:
+    if ratio is None:
+        return "n/a"
+    return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else f"{ratio:.2f}x"
+
+
 # -- pictures ------------------------------------------------------------------------------------------------
-def _cell_text(job: Job, source: str) -> str:
-    ms, mb, mse = job.ms_per_frame(source), job.memory_mb(source), job.rollout_mse
+_VERSUS_BEST_TAGS = {"best": "best", TIED: "≈ best", "better": "better than best (paired)"}
+
+
+def _cell_text(job: Job, source: str, versus: tuple[str, str | None] | None = None) -> str:
+    ms, mb = job.ms_per_frame(source), job.memory_mb(source)
     first = f"{ms:.1f} ms/frame" if ms is not None else "? ms/frame"
     first += f", {mb:.0f} MB" if mb is not None else ""
-    return first + (f"\nMSE {mse:.2e}" if mse is not None else "")
+    if job.rollout_mse is None:
+        return first
+    lines = [first, "MSE " + _with_se(*job.spread("rollout_mse"))]
+    ratio = job.baseline_ratio()
+    if ratio[0] is not None:
+        lines.append("base/model " + _ratio_text(*ratio))
+    tag = _VERSUS_BEST_TAGS.get(versus[0]) if versus else None
+    if job.versus_baseline() == DOES_NOT_BEAT:
+        lines.append("does not beat baseline" + (f"; {tag}" if tag else ""))
+    elif tag:
+        lines.append(tag)
+    return "\n".join(lines)
+
+
+def _cell_colour(job: Job) -> str:
+    return "red" if job.versus_baseline() == DOES_NOT_BEAT else "black"
 
 
 def grid_layout(jobs: Sequence[Job]) -> tuple[str | None, list, str, list]:
@@ -261,12 +392,13 @@ def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None
     for job in jobs:
         cells.setdefault((getattr(job, row_key) if row_key else None, getattr(job, col_key)), job)
     source = speed_source(jobs)
+    versus = versus_best(jobs)
     truth = next(
         (j.frame_truth_png for j in jobs if j.frame_truth_png and Path(j.frame_truth_png).is_file()), None
     )
     ncols = len(col_values) + (1 if truth else 0)
     fig, grid = plt.subplots(
-        len(row_values), ncols, figsize=(2.6 * ncols, 2.9 * len(row_values)), squeeze=False
+        len(row_values), ncols, figsize=(2.6 * ncols, 3.4 * len(row_values) + 0.3), squeeze=False
     )
     for r, row_value in enumerate(row_values):
         for c, col_value in enumerate(col_values):
@@ -279,14 +411,17 @@ def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None
                 ax.text(0.5, 0.5, "not run", ha="center", va="center", transform=ax.transAxes)
             elif job.ok and job.frame_png and Path(job.frame_png).is_file():
                 ax.imshow(iio.imread(job.frame_png))
-                ax.set_xlabel(_cell_text(job, source), fontsize=8)
+                ax.set_xlabel(
+                    _cell_text(job, source, versus.get(id(job))), fontsize=8, color=_cell_colour(job)
+                )
             else:
                 ax.set_facecolor("0.85")
                 reason = "failed: " + (job.error or "unknown") if not job.ok else "no frame rendered"
                 ax.text(0.5, 0.5, "\n".join(textwrap.wrap(reason, 26)[:6]), ha="center", va="center",
                         fontsize=7, color="darkred", transform=ax.transAxes)  # fmt: skip
                 if job.ok:
-                    ax.set_xlabel(_cell_text(job, source), fontsize=8)
+                    ax.set_xlabel(_cell_text(job, source, versus.get(id(job))), fontsize=8,
+                                  color=_cell_colour(job))  # fmt: skip
             if r == 0:
                 ax.set_title(_axis_value(col_key, col_value), fontsize=10)
             if c == 0 and row_key:
@@ -311,7 +446,9 @@ def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None
                 ax.axis("off")
     what = "benchmark at WaterRamps size" if source == "bench" else "test rollouts"
     sweep = next((j.sweep for j in jobs if j.sweep), "sweep")
-    fig.suptitle(f"{sweep}: one test frame per model; ms/frame and peak MB from the {what}", fontsize=11)
+    title = f"{sweep}: one test frame per model; ms/frame and peak MB from the {what}"
+    fig.suptitle(title + "\ntest MSE ± SE over trajectories; red: does not beat the physics-free baseline",
+                 fontsize=10)  # fmt: skip
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -333,7 +470,8 @@ def _axis_value(key: str, value) -> str:
 
 
 def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL) -> Path:
-    """ms/frame against test rollout MSE, log-log, every successful job labelled, the Pareto front joined."""
+    """ms/frame against test rollout MSE (±1 SE error bars), log-log, every successful job labelled, the
+    Pareto front joined, jobs that do not beat the physics-free baseline in red."""
     import matplotlib.pyplot as plt
 
     source = speed_source(jobs)
@@ -347,7 +485,15 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
     fig, ax = plt.subplots(figsize=(7, 5))
     if points:
         xs, ys = np.array(points).T
-        ax.scatter(xs, ys, color="tab:blue", zorder=3, label="model")
+        se = np.array([job.spread("rollout_mse")[1] or 0.0 for job in shown])
+        # On a log axis the lower bar cannot reach zero: clip it just above.
+        ax.errorbar(xs, ys, yerr=[np.minimum(se, 0.99 * ys), se], fmt="none", ecolor="0.4", elinewidth=1,
+                    capsize=3, zorder=2.5)  # fmt: skip
+        losing = np.array([job.versus_baseline() == DOES_NOT_BEAT for job in shown])
+        ax.scatter(xs[~losing], ys[~losing], color="tab:blue", zorder=3, label="model (±1 SE)")
+        if losing.any():
+            ax.scatter(xs[losing], ys[losing], color="red", marker="X", s=70, zorder=3,
+                       label="does not beat the baseline")  # fmt: skip
         for job, (x, y) in zip(shown, points):
             ax.annotate(job.label(keys), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
             if highlight is not None and (job.latent_size, job.mp_steps) == tuple(highlight):
@@ -420,14 +566,27 @@ def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
 # -- tables --------------------------------------------------------------------------------------------------
 COLUMNS = (
     "job", "name", "status", "latent_size", "mp_steps", "radius", "parameters", "train_steps", "steps_per_s",
-    "train_min", "rollout_mse", "onestep_mse", "emd", "baseline_mse", "test_ms_per_frame", "test_peak_mb",
-    "bench_ms_per_frame", "bench_peak_mb", "pareto", "error",
+    "train_min", "rollout_mse", "rollout_mse_se", "onestep_mse", "onestep_mse_se", "emd", "emd_se",
+    "baseline_mse", "baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi", "vs_baseline", "vs_best",
+    "vs_best_method", "test_ms_per_frame", "test_peak_mb", "bench_ms_per_frame", "bench_peak_mb", "pareto",
+    "error",
 )  # fmt: skip
+#: The markdown table's columns: spreads and intervals shown in their value's cell, not on their own.
+MARKDOWN_COLUMNS = tuple(
+    c for c in COLUMNS if not c.endswith(("_se", "_lo", "_hi")) and c != "vs_best_method"
+)
 
 
 def table_rows(jobs: Sequence[Job]) -> list[dict[str, Any]]:
-    """One dict per job with :data:`COLUMNS` (None where unknown); ``pareto`` marks the speed/error front."""
+    """One dict per job with :data:`COLUMNS` (None where unknown).
+
+    ``<key>_se``: standard errors over test trajectories; ``baseline_ratio`` (``_lo``, ``_hi``): the geometric
+    mean of baseline / model rollout MSE and its 95% interval (:meth:`Job.baseline_ratio`); ``vs_baseline``:
+    :func:`gnsx.spread.baseline_verdict`; ``vs_best``, ``vs_best_method``: :func:`versus_best`; ``pareto``
+    marks the speed/error front.
+    """
     source = speed_source(jobs)
+    versus = versus_best(jobs)
     candidates = [
         j for j in jobs if j.ok and j.ms_per_frame(source) is not None and j.rollout_mse is not None
     ]
@@ -436,6 +595,7 @@ def table_rows(jobs: Sequence[Job]) -> list[dict[str, Any]]:
     }
     rows = []
     for j in jobs:
+        ratio = j.baseline_ratio() if j.ok else (None, None, None)
         rows.append(
             {
                 "job": j.job,
@@ -448,10 +608,16 @@ def table_rows(jobs: Sequence[Job]) -> list[dict[str, Any]]:
                 "train_steps": j.train_steps,
                 "steps_per_s": j.steps_per_s,
                 "train_min": j.train_wall_s / 60 if j.train_wall_s is not None else None,
-                "rollout_mse": j.rollout_mse,
-                "onestep_mse": _number(j.test.get("onestep_mse")),
-                "emd": _number(j.test.get("emd")),
+                **{
+                    name: value
+                    for key in ("rollout_mse", "onestep_mse", "emd")
+                    for name, value in zip((key, f"{key}_se"), j.spread(key))
+                },
                 "baseline_mse": _number(j.test.get("baseline_mse")),
+                **dict(zip(("baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi"), ratio)),
+                "vs_baseline": j.versus_baseline(),
+                "vs_best": versus.get(id(j), (None, None))[0],
+                "vs_best_method": versus.get(id(j), (None, None))[1],
                 "test_ms_per_frame": j.ms_per_frame("test"),
                 "test_peak_mb": j.memory_mb("test"),
                 "bench_ms_per_frame": j.ms_per_frame("bench"),
@@ -475,17 +641,30 @@ def _fmt(value: Any) -> str:
     return str(value).replace("|", "\\|")
 
 
+def _markdown_cell(row: dict[str, Any], column: str) -> str:
+    value = row.get(column)
+    if column in ("rollout_mse", "onestep_mse", "emd") and value is not None:
+        se = row.get(f"{column}_se")
+        return _fmt(value) + (f" ± {se:.1e}" if se is not None else "")
+    if column == "baseline_ratio" and value is not None:
+        return _ratio_text(value, row.get("baseline_ratio_lo"), row.get("baseline_ratio_hi"))
+    if column == "vs_baseline" and value == DOES_NOT_BEAT:
+        return "**does not beat baseline**"
+    if column == "vs_best" and value is not None and row.get("vs_best_method"):
+        return f"{value} ({'paired' if row['vs_best_method'] == 'paired' else '±2 SE'})"
+    if value is None and column in ("error", "vs_baseline", "vs_best"):
+        return ""
+    return _fmt(value)
+
+
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
-    """A GitHub markdown table of :func:`table_rows`."""
-    header = "| " + " | ".join(COLUMNS) + " |"
-    rule = "|" + "|".join("---" for _ in COLUMNS) + "|"
+    """A GitHub markdown table of :func:`table_rows` (:data:`MARKDOWN_COLUMNS`): errors as ``mean ± se``, the
+    baseline ratio with its interval, models that do not beat the baseline in bold."""
+    header = "| " + " | ".join(MARKDOWN_COLUMNS) + " |"
+    rule = "|" + "|".join("---" for _ in MARKDOWN_COLUMNS) + "|"
     lines = [header, rule]
     for row in rows:
-        lines.append(
-            "| "
-            + " | ".join(_fmt(row[c]) if row[c] is not None or c != "error" else "" for c in COLUMNS)
-            + " |"
-        )
+        lines.append("| " + " | ".join(_markdown_cell(row, c) for c in MARKDOWN_COLUMNS) + " |")
     return "\n".join(lines)
 
 
@@ -503,7 +682,10 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
         f"Swept: {', '.join(AXIS_LABELS[k] for k in keys) or 'nothing among latent size, MP steps, radius'}.",
         "Speed and memory in the pictures: "
         + ("one inference step at WaterRamps size (`bench`)." if source == "bench" else "the test rollouts."),
-        "Errors: position MSE per coordinate over dynamic particles, test split (data units squared).",
+        "Errors: position MSE per coordinate over dynamic particles, test split (data units squared), mean ±"
+        " standard error over the test trajectories. `baseline_ratio`: geometric mean over trajectories of"
+        " the physics-free baseline's rollout MSE over the model's, with its 95% t interval (below 1: the"
+        " model does not beat the baseline; an interval containing 1: the two cannot be told apart).",
         "",
     ]
     for title, picture in pictures.items():
@@ -515,6 +697,7 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
             next(j for j in jobs if j.job == r["job"] and j.name == r["name"]).label(keys) for r in front
         ]
         lines += [f"Pareto front (ms/frame vs rollout MSE, fastest first): {', '.join(labels)}.", ""]
+    lines += _spread_notes(jobs, rows, keys)
     failed = [j for j in jobs if not j.ok]
     if failed:
         lines += ["## Failed jobs", ""]
@@ -522,6 +705,32 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
         lines.append("")
     path.write_text("\n".join(lines))
     return path
+
+
+def _spread_notes(jobs: Sequence[Job], rows: Sequence[dict], keys: Sequence[str]) -> list[str]:
+    """The markdown lines on the comparison with the best job and on the models losing to the baseline."""
+    best = best_job(jobs)
+    if best is None:
+        return []
+    label = {id(j): j.label(keys) for j in jobs}
+    by_method: dict[str | None, list[str]] = {}
+    for job, row in zip(jobs, rows):
+        if row["vs_best"] not in (None, "best"):
+            by_method.setdefault(row["vs_best_method"], []).append(label[id(job)])
+    lines = []
+    if by_method:
+        tied = [label[id(j)] for j, r in zip(jobs, rows) if r["vs_best"] == TIED]
+        others = f"cannot be told apart from it: {', '.join(tied)}." if tied else "none is within its spread."
+        lines.append(f"Best (lowest mean rollout MSE): {label[id(best)]}; of the others, {others}")
+        methods = {"paired": "paired comparison over the same test trajectories (geometric-mean ratio, 95% t"
+                   " interval)", "2se": "overlap of mean ± 2 SE (no per-trajectory rows)",
+                   None: "unknown (no spread recorded)"}  # fmt: skip
+        lines += ["Compared with the best by:"]
+        lines += [f"- {methods[m]}: {', '.join(names)}" for m, names in by_method.items()]
+    losing = [label[id(j)] for j in jobs if j.versus_baseline() == DOES_NOT_BEAT]
+    if losing:
+        lines.append(f"\n**Do not beat the physics-free baseline:** {', '.join(losing)}.")
+    return [*lines, ""]
 
 
 def write_csv(rows: Sequence[dict], path: Path) -> Path:

@@ -187,7 +187,7 @@ def simulate_to_folder(
     with the ground truth it holds ``ground_truth`` too), ``rollout.<gif|mp4>`` (the model alone, coloured by
     speed), ``strip.png`` (frames 0, ``strip_every``, ...). With ``ground_truth``: ``comparison.<gif|mp4>``
     (MPM | model side by side), ``rollout.pkl`` (DeepMind's rollout format) and ``errors.json``
-    (:func:`gnsx.evaluate.rollout_errors`: position MSE, EMD, kinetic-energy error, neighbour ratio, ...).
+    (:func:`gnsx.scoring.rollout_errors`: position MSE, EMD, kinetic-energy error, neighbour ratio, ...).
 
     Returns:
         ``{"out_dir", "particles", "frames", "history_source", "files": {...}, "errors": {...} (with ground
@@ -195,9 +195,9 @@ def simulate_to_folder(
     """
     import json
 
-    from gnsx.evaluate import json_ready, rollout_errors
     from gnsx.render import render_rollouts, save_animation, save_strip
     from gnsx.rollout_io import Rollout, export_deepmind, save_rollout
+    from gnsx.scoring import json_ready, rollout_errors
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

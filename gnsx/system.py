@@ -13,11 +13,11 @@ import lightning as L
 import torch
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
-from gnsx.evaluate import onestep_mse
 from gnsx.metrics import position_mse
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.schedule import learning_rate, noise_std
+from gnsx.scoring import onestep_mse
 
 #: Training losses on the normalised acceleration (``train.loss``).
 LOSSES = ("mse", "huber")
@@ -106,9 +106,23 @@ class GNSSystem(L.LightningModule):
     # -- schedules -------------------------------------------------------------------------------------------
     def _lr_kwargs(self) -> dict:
         h = self.hparams
+        scale = self.schedule_scale
         return dict(
-            lr_init=h.lr_init, lr_final=h.lr_final, decay_start=h.lr_decay_start, decay_end=h.lr_decay_end
+            lr_init=h.lr_init,
+            lr_final=h.lr_final,
+            decay_start=int(round(h.lr_decay_start * scale)),
+            decay_end=int(round(h.lr_decay_end * scale)),
         )
+
+    #: Factor on the LR decay's start and end steps (1: as configured); set by :meth:`set_schedule_scale`.
+    schedule_scale: float = 1.0
+
+    def set_schedule_scale(self, factor: float) -> None:
+        """Compress (``factor < 1``) the LR and noise schedule in steps, e.g. to fit a run shortened to
+        ``factor`` of its steps by :class:`gnsx.time_budget.TimeBudget`. Both are read at every step."""
+        if not factor > 0:
+            raise ValueError(f"set_schedule_scale: factor must be > 0, got {factor}")
+        self.schedule_scale = float(factor)
 
     def current_noise_std(self) -> float:
         """Noise std at the current optimizer step (decays with the LR; restored on resume with the step)."""
@@ -117,10 +131,12 @@ class GNSSystem(L.LightningModule):
         )
 
     def configure_optimizers(self):
-        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr_init)
-        kwargs = self._lr_kwargs()
+        # fused: one kernel over all ~60 parameter tensors instead of a dozen ops per tensor (Adam's step went
+        # from 5.5 to 1.7 ms of a ~90 ms CPU training step); same update as the default implementation.
+        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr_init, fused=True)
+        # The lambda reads the schedule at every step, so set_schedule_scale takes effect mid-run.
         scheduler = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda step: learning_rate(step, **kwargs) / kwargs["lr_init"]
+            optimizer, lambda step: learning_rate(step, **self._lr_kwargs()) / self.hparams.lr_init
         )
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
 
@@ -167,7 +183,7 @@ def evaluate_trajectory(
         ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
         starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
         steps from ground-truth inputs on every ``onestep_stride``-th frame
-        (:func:`gnsx.evaluate.onestep_mse`).
+        (:func:`gnsx.scoring.onestep_mse`).
     """
     frames = simulator.input_frames
     position = position.to(simulator.acc_std.device)

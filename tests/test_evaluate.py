@@ -1,8 +1,10 @@
-"""Evaluation: rollout errors with known answers, benchmark, rollout files, the evaluate.py entry point."""
+"""Evaluation: rollout errors with known answers, their spread over trajectories, benchmark, rollout files,
+the evaluate.py entry point, and the scoring library's independence from the training code."""
 
 from __future__ import annotations
 
 import json
+import math
 import pickle
 import subprocess
 import sys
@@ -15,19 +17,21 @@ import pytest
 import torch
 
 from gnsx.benchmark import build_model, format_results, measure_inference, packed_scene
+from gnsx.checkpoints import load_simulator, model_label
 from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.data.store import SplitReader, load_metadata
 from gnsx.datamodule import TrajectoryDataset
 from gnsx.errors import DataError
-from gnsx.evaluate import (
+from gnsx.rollout_io import DEEPMIND_KEYS, Rollout, export_deepmind, from_deepmind, load_rollout, save_rollout
+from gnsx.scoring import (
     distribution_frames,
     evaluate_simulator,
-    load_simulator,
-    model_label,
+    format_table,
+    horizon_mse,
     rollout_errors,
+    summarise,
 )
-from gnsx.rollout_io import DEEPMIND_KEYS, Rollout, export_deepmind, from_deepmind, load_rollout, save_rollout
 from gnsx.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,6 +127,81 @@ def test_compressed_rollout_shows_volume_loss_and_escapes_show_out_of_bounds():
     assert errors["out_of_bounds_fraction"] == pytest.approx(4 / 10 / 8)
 
 
+def test_horizons_average_the_first_predicted_frames():
+    true, types = _scene(num_frames=62)  # 2 input frames, 60 predicted
+    predicted = true.copy()
+    step = 0.001 * np.arange(1, 61)  # the k-th predicted frame is off by 0.001 k along both axes
+    predicted[2:, :10] += step[:, None, None]
+    errors, per_frame = rollout_errors(predicted, true, types, 2, META, emd_every=0)
+    np.testing.assert_allclose(per_frame["mse"][2:], step**2)  # per coordinate, water only
+    assert errors["mse_at_10"] == pytest.approx(np.mean(step[:10] ** 2))
+    assert errors["mse_at_50"] == pytest.approx(np.mean(step[:50] ** 2))
+    assert errors["mse_at_10"] < errors["mse_at_50"] < errors["rollout_mse"]
+    short, _ = rollout_errors(predicted[:30], true[:30], types, 2, META, emd_every=0)
+    assert short["mse_at_10"] == errors["mse_at_10"] and np.isnan(short["mse_at_50"])  # 28 predicted frames
+    assert horizon_mse(per_frame["mse"], 2, 60) == pytest.approx(errors["rollout_mse"])
+    assert np.isnan(horizon_mse(per_frame["mse"], 2, 61))
+
+
+def _row(trajectory: int, rollout: float, baseline: float, **more) -> dict:
+    row = {"trajectory": trajectory, "particles": 10, "rollout_mse": rollout, "baseline_mse": baseline}
+    return row | {"baseline_ratio": baseline / rollout, "ms_per_frame": 1.0, "peak_memory_mb": None, **more}
+
+
+def test_summary_carries_standard_errors_and_the_geometric_mean_baseline_ratio():
+    rows = [_row(0, 1.0, 2.0, mse_at_10=0.1), _row(1, 2.0, 2.0, mse_at_10=0.3), _row(2, 3.0, 6.0)]
+    rows[2]["mse_at_10"] = float("nan")  # e.g. a rollout shorter than the horizon
+    summary = summarise(rows)
+    assert summary["rollout_mse"] == 2.0 and summary["rollout_mse_se"] == pytest.approx(1 / math.sqrt(3))
+    assert summary["baseline_mse_se"] == pytest.approx(4 / math.sqrt(3) / math.sqrt(3))  # std 4/sqrt(3)
+    assert summary["mse_at_10"] == pytest.approx(0.2)  # NaN rows left out
+    assert summary["mse_at_10_se"] == pytest.approx(0.1)
+    assert summary["baseline_ratio"] == pytest.approx((10 / 3) / 2)  # ratio of the means, as before
+    assert summary["baseline_ratio_geomean"] == pytest.approx(4 ** (1 / 3))  # ratios 2, 1, 2
+    assert summary["baseline_ratio_geomean_lo"] < 4 ** (1 / 3) < summary["baseline_ratio_geomean_hi"]
+    assert summary["baseline_ratio_wins"] == 2  # a tie is not a win
+    assert summary["trajectories"] == 3 and summary["ms_per_frame"] == 1.0
+    one = summarise(rows[:1])
+    assert one["rollout_mse"] == 1.0 and np.isnan(one["rollout_mse_se"])
+    assert np.isnan(one["baseline_ratio_geomean_lo"])
+    # Rows written before the horizons existed still summarise (those keys are left out).
+    old = [{k: v for k, v in r.items() if k not in ("mse_at_10", "baseline_ratio")} for r in rows]
+    assert "mse_at_10" not in summarise(old)
+    assert summarise(old)["baseline_ratio_geomean"] == pytest.approx(4 ** (1 / 3))
+
+
+def test_table_says_loudly_when_the_model_does_not_beat_the_baseline(monkeypatch):
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    losing = [_row(i, 2.0 * f, 1.0 * f) for i, f in enumerate((1.0, 1.1, 0.9, 1.05))]
+    table = format_table(losing, summarise(losing), "losing", colour=True)
+    assert "\033[1;31mMODEL DOES NOT BEAT THE PHYSICS-FREE BASELINE\033[0m" in table
+    assert "geometric mean 0.50x [0.50, 0.50]" in table and "wins on 0/4 trajectories" in table
+    plain = format_table(losing, summarise(losing), "losing")  # pytest's stdout is no terminal
+    assert "MODEL DOES NOT BEAT THE PHYSICS-FREE BASELINE" in plain and "\033[" not in plain
+    monkeypatch.setenv("FORCE_COLOR", "1")
+    assert "\033[1;31m" in format_table(losing, summarise(losing), "losing")
+    monkeypatch.delenv("FORCE_COLOR")
+
+    mixed = [_row(i, 1.0, r) for i, r in enumerate((3.0, 0.5, 2.0, 0.6))]
+    table = format_table(mixed, summarise(mixed), "mixed")
+    assert "cannot be told apart from the baseline" in table and "DOES NOT BEAT" not in table
+    lines = table.splitlines()
+    assert lines[1].split()[:4] == ["traj", "particles", "rollout", "MSE"]
+    assert lines[6].startswith(" mean") and lines[7].startswith(" ± se")
+    winning = [_row(i, 1.0, r) for i, r in enumerate((3.0, 3.3, 2.9, 3.1))]
+    assert "The model beats the physics-free baseline" in format_table(winning, summarise(winning), "w")
+
+
+def test_scoring_imports_nothing_of_the_training_code():
+    code = (
+        "import sys, gnsx.scoring\n"
+        "bad = [m for m in ('gnsx.pipeline', 'gnsx.evaluate', 'gnsx.system') if m in sys.modules]\n"
+        "assert not bad, bad"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 def test_distribution_frames_are_absolute_so_models_share_them():
     assert distribution_frames(30, 2, 10) == [10, 20, 29]
     assert distribution_frames(30, 6, 10) == [10, 20, 29]
@@ -149,8 +228,20 @@ def test_evaluate_simulator_on_a_split(tiny_dataset, checkpoints):
             on_trajectory=seen.append,
         )
         assert summary["trajectories"] == len(rows) == len(seen) == count  # max_trajectories is honoured
-        for key in ("rollout_mse", "rollout_mse_all", "onestep_mse", "baseline_mse", "emd", "ms_per_frame"):
+        for key in ("rollout_mse", "rollout_mse_all", "onestep_mse", "baseline_mse", "emd", "ms_per_frame",
+                    "mse_at_10", "baseline_mse_at_10", "baseline_emd", "baseline_ratio_geomean"):  # fmt: skip
             assert np.isfinite(summary[key]) and summary[key] > 0, key
+        assert np.isfinite(summary["rollout_mse_se"]) == (count > 1)
+        row, per_frame = rows[0], seen[0].per_frame
+        assert np.isnan(row["mse_at_50"]) and np.isnan(row["baseline_mse_at_50"])  # fewer than 50 frames
+        first_ten = slice(frames, frames + 10)
+        assert row["mse_at_10"] == pytest.approx(np.mean(per_frame["mse"][first_ten]))
+        assert row["baseline_mse_at_10"] == pytest.approx(np.mean(per_frame["baseline_mse"][first_ten]))
+        assert row["baseline_ratio"] == pytest.approx(row["baseline_mse"] / row["rollout_mse"])
+        # The baseline's EMD is taken on the model's EMD frames.
+        emd_frames = np.flatnonzero(~np.isnan(per_frame["emd"]))
+        np.testing.assert_array_equal(np.flatnonzero(~np.isnan(per_frame["baseline_emd"])), emd_frames)
+        assert row["baseline_emd"] == pytest.approx(np.mean(per_frame["baseline_emd"][emd_frames]))
         assert summary["peak_memory_mb"] is None or summary["peak_memory_mb"] >= 0
         assert rows[0]["frames"] == 30 - frames
         assert len(seen[0].per_frame_rows()) == 30 - frames
@@ -263,3 +354,12 @@ def test_evaluate_entry_point_two_checkpoints_side_by_side(tmp_path, tiny_datase
     assert iio.imread(run / "strip.png").shape[:2] == (3 * 192, 3 * 192)  # frames 0, 10, 20; three rows
     logged = next((run / "csv").glob("version_*/metrics.csv")).read_text()
     assert "test/simplified_GNS_8_2/rollout_mse" in logged and "test/original_GNS_8_2/frame_mse" in logged
+    assert "test/simplified_GNS_8_2/rollout_mse_se" not in logged  # one trajectory: no spread, not logged
+    # The second model compared with the first, paired by trajectory (one: they cannot be told apart).
+    comparisons = results["comparisons"]
+    assert [(c["a"], c["b"], c["key"]) for c in comparisons] == [
+        ("original GNS 8/2", "simplified GNS 8/2", "rollout_mse"),
+        ("original GNS 8/2", "simplified GNS 8/2", "emd"),
+    ]
+    assert all(c["verdict"] == "cannot be told apart" and c["trajectories"] == 1 for c in comparisons)
+    assert "Paired comparisons with original GNS 8/2" in done.stdout and "± se" in done.stdout

@@ -42,20 +42,33 @@ def test_interaction_network_equations():
         assert torch.allclose(new_e, expected_e, atol=1e-5)
 
 
-def test_split_first_layer_equals_concat():
+@pytest.mark.parametrize("hidden_layers,residual", [(1, False), (2, True)])
+def test_fast_layer_matches_reference_forward_and_backward(hidden_layers, residual):
+    """The split first layers and index_add_ aggregation compute the equations, gradients included."""
+    from reference_gns import incidence
+
     x, edge_index, edge_attr = random_graph(num_nodes=50, num_edges=400, latent=32, seed=3)
-    split = InteractionNetwork(32, 48, 2, edge_residual=True, split_first_layer=True)
-    naive = InteractionNetwork(32, 48, 2, edge_residual=True, split_first_layer=False)
-    naive.load_state_dict(split.state_dict())  # same parameters: state_dict compatible
-    for got, want in zip(split(x, edge_index, edge_attr), naive(x, edge_index, edge_attr)):
+    x.requires_grad_(True)
+    layer = InteractionNetwork(32, 48, hidden_layers, edge_residual=residual)
+    senders, receivers = edge_index
+
+    def reference(x):
+        messages = layer.edge_mlp(torch.cat([edge_attr, x[receivers], x[senders]], dim=1))
+        aggregated = incidence(edge_index, x.shape[0], x.dtype) @ messages
+        new_e = edge_attr + messages if residual else messages
+        return x + layer.node_mlp(torch.cat([aggregated, x], dim=1)), new_e
+
+    outputs = [layer(x, edge_index, edge_attr), reference(x)]
+    for got, want in zip(*outputs):
         assert torch.allclose(got, want, atol=1e-5)
-    # Gradients agree too (the split path is what trains).
     grads = []
-    for layer in (split, naive):
+    for new_x, new_e in outputs:
         layer.zero_grad()
-        sum(out.square().sum() for out in layer(x, edge_index, edge_attr)).backward()
-        grads.append(layer.edge_mlp.first.weight.grad.clone())
-    assert torch.allclose(grads[0], grads[1], rtol=1e-4, atol=1e-4)
+        x.grad = None
+        (new_x.square().sum() + new_e.sin().sum()).backward()
+        grads.append([x.grad.clone()] + [p.grad.clone() for p in layer.parameters()])
+    for got, want in zip(*grads):
+        assert torch.allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
 def test_messages_flow_from_sender_to_receiver():
@@ -93,3 +106,57 @@ def test_encode_process_decode_shapes(config):
     edge_index = torch.randint(0, 40, (2, 200))
     out = model(x, edge_index, torch.randn(200, 3))
     assert out.shape == (40, 2) and torch.isfinite(out).all()
+
+
+def _waterramps_like_graph(simulator, num_particles=300, seed=0):
+    """Node/edge inputs of ``simulator`` for a jittered block of water with a row of static particles."""
+    from gnsx.benchmark import packed_scene
+
+    sequence, particle_type = packed_scene(
+        num_particles, 0.009, simulator.config["bounds"], simulator.history, seed=seed
+    )
+    sequence = sequence + 1e-3 * torch.randn(sequence.shape, generator=torch.Generator().manual_seed(seed))
+    node_features, edge_index, edge_attr = simulator.build_graph(sequence, particle_type)
+    # Detached: the type embedding's graph would otherwise be shared by the two backward passes.
+    return node_features.detach(), edge_index, edge_attr
+
+
+@pytest.mark.parametrize("name", ["simplified", "original"])
+def test_fast_network_matches_reference_on_both_configs(name):
+    """Random weights: the whole encode-process-decode forward and its parameter gradients."""
+    from reference_gns import reference_forward
+
+    from gnsx.benchmark import build_model
+
+    torch.manual_seed(0)
+    simulator = build_model(name)
+    node_features, edge_index, edge_attr = _waterramps_like_graph(simulator)
+    outputs = [
+        simulator.network(node_features, edge_index, edge_attr),
+        reference_forward(simulator.network, node_features, edge_index, edge_attr),
+    ]
+    assert torch.allclose(outputs[0], outputs[1], rtol=1e-4, atol=1e-4)
+    grads = []
+    for out in outputs:
+        simulator.zero_grad()
+        out.square().sum().backward()
+        grads.append([p.grad.clone() for p in simulator.network.parameters()])
+    for got, want in zip(*grads):
+        assert torch.allclose(got, want, rtol=1e-3, atol=1e-3 * float(want.abs().max()))
+
+
+def test_fast_network_matches_reference_with_shipped_weights():
+    """Trained weights (pretrained/small): same predictions as the reference transcription."""
+    from pathlib import Path
+
+    from reference_gns import reference_forward
+
+    from gnsx.checkpoints import load_simulator
+
+    path = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
+    simulator = load_simulator(path)
+    node_features, edge_index, edge_attr = _waterramps_like_graph(simulator, num_particles=400, seed=1)
+    with torch.no_grad():
+        fast = simulator.network(node_features, edge_index, edge_attr)
+        reference = reference_forward(simulator.network, node_features, edge_index, edge_attr)
+    assert torch.allclose(fast, reference, rtol=1e-4, atol=1e-4 * float(reference.abs().max()))

@@ -12,10 +12,11 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
-from gnsx.evaluate import load_simulator, score_trajectory
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import get_preset
+from gnsx.scoring import score_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "pretrained" / "small"

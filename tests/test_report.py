@@ -1,5 +1,5 @@
 """The sweep report from hand-made job folders: loading (failed, killed, missing jobs), the Pareto front, the
-grid/scatter/radius pictures, the markdown table and the wandb table."""
+grid/scatter/radius pictures, the markdown table and the wandb table, errors with and without their spread."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 from gnsx.report import (
     build_report,
     grid_layout,
+    load_job,
     load_sweep,
     main,
     markdown_table,
@@ -20,7 +21,9 @@ from gnsx.report import (
     speed_source,
     swept_axes,
     table_rows,
+    versus_best,
 )
+from gnsx.scoring import summarise
 
 
 def _job(sweep_dir: Path, number: int, results: dict | None, hydra_model: dict | None = None) -> Path:
@@ -187,3 +190,107 @@ def test_missing_or_empty_directories_say_so(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="no job folders"):
         load_sweep(tmp_path / "empty")
+
+
+# ------------------------------------------------------------------------------------------------ spreads
+
+
+def _with_rows(results: dict, rollout: list[float], baseline: list[float], summary: bool = True) -> dict:
+    """``results`` with per-trajectory rows and (``summary``) the test summary they give, as written since the
+    spreads exist; without ``summary`` the rows sit next to an old summary (means only)."""
+    rows = [
+        {"trajectory": i, "particles": 10, "rollout_mse": r, "baseline_mse": b, "onestep_mse": r / 100,
+         "ms_per_frame": 1.0, "peak_memory_mb": None}
+        for i, (r, b) in enumerate(zip(rollout, baseline))
+    ]  # fmt: skip
+    means = {"rollout_mse": float(np.mean(rollout)), "baseline_mse": float(np.mean(baseline))}
+    test = summarise(rows) if summary else means
+    test["ms_per_frame"] = results["test"]["ms_per_frame"]
+    return results | {"test": test, "rows": rows}
+
+
+def _red_pixels(path: Path) -> int:
+    image = iio.imread(path)[..., :3].astype(int)
+    return int((np.abs(image - np.array([255, 0, 0])).sum(axis=-1) < 60).sum())
+
+
+@pytest.fixture
+def spread_sweep(tmp_path) -> Path:
+    """Jobs with and without spreads: 64/5 best; 64/1 within its spread (paired); 16/1 clearly worse and
+    losing to the baseline (paired); 16/5 with standard errors but no rows (2 SE overlap); 32/5 old-style."""
+    sweep = tmp_path / "spread"
+    best = np.array([0.010, 0.020, 0.005, 0.040])
+    _job(sweep, 0, _with_rows(_ok(64, 5, 0.0, ms=20.0), list(best), [0.05] * 4))
+    _job(sweep, 1, _with_rows(_ok(64, 1, 0.0, ms=8.0), list(best * [1.4, 1.2, 1.3, 0.85]), [0.05] * 4))
+    _job(sweep, 2, _with_rows(_ok(16, 1, 0.0, ms=2.0), list(best * [3.0, 3.2, 2.9, 3.1]), list(best * 2)))
+    no_rows = _ok(16, 5, mse=0.04, ms=4.0)
+    no_rows["test"]["rollout_mse_se"] = 0.005
+    _job(sweep, 3, no_rows)
+    _job(sweep, 4, _ok(32, 5, mse=0.03, ms=6.0))
+    return sweep
+
+
+def test_report_ranks_jobs_by_their_spread(spread_sweep):
+    jobs = {(j.latent_size, j.mp_steps): j for j in load_sweep(spread_sweep)}
+    rows = {(r["latent_size"], r["mp_steps"]): r for r in table_rows(list(jobs.values()))}
+    best = rows[(64, 5)]
+    assert best["rollout_mse"] == pytest.approx(0.01875)
+    assert best["rollout_mse_se"] == pytest.approx(np.std([0.01, 0.02, 0.005, 0.04], ddof=1) / 2)
+    assert best["vs_best"] == "best"
+    # Geometric mean 3.5x the baseline, but its ratios (5, 2.5, 10, 1.25) spread too widely to tell.
+    assert best["baseline_ratio"] == pytest.approx((5 * 2.5 * 10 * 1.25) ** 0.25)
+    assert best["baseline_ratio_lo"] < 1 < best["baseline_ratio_hi"]
+    assert best["vs_baseline"] == "cannot be told apart from the baseline"
+    assert (rows[(64, 1)]["vs_best"], rows[(64, 1)]["vs_best_method"]) == ("cannot be told apart", "paired")
+    assert (rows[(16, 1)]["vs_best"], rows[(16, 1)]["vs_best_method"]) == ("worse", "paired")
+    assert rows[(16, 1)]["baseline_ratio"] == pytest.approx(2 / np.exp(np.mean(np.log([3.0, 3.2, 2.9, 3.1]))))
+    assert rows[(16, 1)]["vs_baseline"] == "does not beat the baseline"
+    # Only an SE and no rows: mean ± 2 SE. 0.04 ± 0.01 and 0.019 ± 0.016 overlap.
+    assert (rows[(16, 5)]["vs_best"], rows[(16, 5)]["vs_best_method"]) == ("cannot be told apart", "2se")
+    assert rows[(16, 5)]["rollout_mse_se"] == 0.005 and rows[(16, 5)]["baseline_ratio_lo"] is None
+    # An old results.json: means only, no spread to compare with, the ratio of means for the baseline.
+    old = rows[(32, 5)]
+    assert old["vs_best"] == "unknown" and old["vs_best_method"] is None and old["rollout_mse_se"] is None
+    assert (
+        old["baseline_ratio"] == pytest.approx(0.05 / 0.03)
+        and old["vs_baseline"] == "cannot be told apart from the baseline"
+    )
+    assert set(versus_best(list(jobs.values())).values()) >= {("best", None), ("worse", "paired")}
+
+
+def test_report_files_show_the_spread_and_the_losers(spread_sweep, grid_sweep):
+    outputs = build_report(spread_sweep, wandb_mode="disabled")
+    markdown = outputs["markdown"].read_text()
+    table = [line for line in markdown.splitlines() if line.startswith("| ")]
+    assert "rollout_mse_se" not in table[0] and "vs_best" in table[0]  # spreads inside their value's cell
+    row_16_1 = next(line for line in table if "model.latent_size=16,model.mp_steps=1" in line)
+    assert "**does not beat baseline**" in row_16_1 and "worse (paired)" in row_16_1
+    assert " ± " in row_16_1 and "x [" in row_16_1  # mean ± se and the ratio's interval
+    assert "cannot be told apart (±2 SE)" in markdown
+    assert "**Do not beat the physics-free baseline:** 16/1." in markdown
+    assert (
+        "Best (lowest mean rollout MSE): 64/5; of the others, cannot be told apart from it: 64/1, 16/5."
+        in (markdown)
+    )
+    assert "overlap of mean ± 2 SE (no per-trajectory rows): 16/5" in markdown
+    csv_header = outputs["csv"].read_text().splitlines()[0]
+    assert "rollout_mse_se" in csv_header and "vs_best_method" in csv_header
+    # The losing cell's text is red in the grid, and its point a red cross in the scatter.
+    assert _red_pixels(outputs["grid"]) > 50 and _red_pixels(outputs["speed_vs_error"]) > 50
+    # No job loses to the baseline in the old-style grid sweep: nothing red (failed cells are dark red).
+    old = build_report(grid_sweep, wandb_mode="disabled")
+    assert _red_pixels(old["grid"]) == 0 and _red_pixels(old["speed_vs_error"]) == 0
+    assert "Do not beat" not in old["markdown"].read_text()
+
+
+def test_old_results_without_spreads_load(tmp_path):
+    folder = _job(tmp_path / "old", 0, _ok(64, 5, mse=0.01, ms=2.0))
+    job = load_job(folder)
+    assert job.rows == [] and job.spread("rollout_mse") == (0.01, None)
+    assert job.baseline_ratio() == (pytest.approx(5.0), None, None)
+    # Old rows (no baseline_ratio key, no horizons) give the spread without the summary's new keys.
+    results = _with_rows(_ok(64, 5, 0.0, ms=2.0), [0.01, 0.03], [0.02, 0.06], summary=False)
+    job = load_job(_job(tmp_path / "rows", 0, results))
+    mean, se = job.spread("rollout_mse")
+    assert (mean, se) == (pytest.approx(0.02), pytest.approx(0.01))
+    assert job.baseline_ratio()[0] == pytest.approx(2.0) and job.baseline_ratio()[1] == pytest.approx(2.0)

@@ -210,7 +210,7 @@ def test_segment_rectangle_distance():
 def test_presets_follow_their_recipes():
     small, full = get_preset("small"), get_preset("waterramps")
     assert (small.grid, small.substeps, small.num_frames) == (32, 10, 250)
-    assert small.trajectories == {"train": 20, "valid": 2, "test": 4}
+    assert small.trajectories == {"train": 100, "valid": 8, "test": 16}  # 16 test: enough to rank models
     assert small.particle_spacing == pytest.approx(0.5 / 32, rel=0.01)
     assert small.default_connectivity_radius == 0.035
     assert (small.block_width_range, small.block_height_range) == ((0.15, 0.45), (0.15, 0.35))
@@ -234,7 +234,7 @@ def test_get_preset_errors_and_overrides():
     assert custom.num_frames == 50 and custom.num_trajectories == 5
     assert get_preset("small").num_frames == 250  # the registry is untouched
     get_preset("small").trajectories["train"] = 999  # a caller's copy...
-    assert get_preset("small").trajectories["train"] == 20  # ...is not the registry's
+    assert get_preset("small").trajectories["train"] == 100  # ...is not the registry's
     replaced = dataclasses.replace(get_preset("small"), substeps=20)
     assert isinstance(replaced, Preset) and replaced.solver_settings().substeps == 20
 

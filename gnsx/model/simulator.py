@@ -55,7 +55,6 @@ class LearnedSimulator(nn.Module):
         layer_norm: LayerNorm after every MLP but the decoder.
         self_edges: connect every particle to itself in the radius graph.
         neighbor_search: ``"auto"``, ``"kdtree"`` or ``"cell"`` (see :func:`radius_graph`).
-        split_first_layer: fast split first edge layer (same parameters either way).
 
     Attributes:
         input_frames: ``history + 1``, the number of position frames :meth:`forward` reads.
@@ -85,7 +84,6 @@ class LearnedSimulator(nn.Module):
         layer_norm: bool = True,
         self_edges: bool = False,
         neighbor_search: str = "auto",
-        split_first_layer: bool = True,
     ):
         super().__init__()
         self.config = {
@@ -108,7 +106,6 @@ class LearnedSimulator(nn.Module):
             "layer_norm": bool(layer_norm),
             "self_edges": bool(self_edges),
             "neighbor_search": str(neighbor_search),
-            "split_first_layer": bool(split_first_layer),
         }
         self._check_config()
         cfg = self.config
@@ -143,7 +140,6 @@ class LearnedSimulator(nn.Module):
             out_size=self.dim,
             edge_residual=cfg["edge_residual"],
             layer_norm=cfg["layer_norm"],
-            split_first_layer=cfg["split_first_layer"],
         )
 
     def _check_config(self) -> None:

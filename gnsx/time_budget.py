@@ -1,0 +1,159 @@
+"""Fit a training run's step count, and its LR and noise schedules, to a wall-clock budget.
+
+The demo trains for a fixed time on machines of unknown speed. A step-based schedule cut short by a time cap
+stops with the learning rate still high and the noise still large, silently. :class:`TimeBudget` instead
+measures the training rate over the first ``calibration_steps`` steps and, if ``max_steps`` would not fit in
+the budget, shrinks the run to the steps that do fit and compresses the LR/noise schedule with it (its decay
+start and end scale by the same factor), so the schedule completes whatever the machine's speed. It logs the
+decision, stores it in the checkpoint (a resumed run keeps the fitted schedule) and warns at the end if a time
+cap still stopped training before the fitted step count.
+
+Why calibrate once rather than make the schedule a function of elapsed time: the schedule stays a pure
+function of the step (reproducible, resumable, the same on every rank), and one measurement of a few hundred
+steps is accurate to a few percent on an idle machine; ``safety`` absorbs the rest.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from lightning.pytorch.callbacks import Callback
+
+log = logging.getLogger("gnsx")
+
+
+def parse_duration(value: str | float | int | None) -> float | None:
+    """Seconds of a Lightning ``max_time`` (``"DD:HH:MM:SS"``) or a number of seconds; None stays None."""
+    if value is None:
+        return None
+    if isinstance(value, int | float):
+        return float(value)
+    parts = [float(p) for p in str(value).split(":")]
+    if len(parts) != 4:
+        raise ValueError(f"max_time must be 'DD:HH:MM:SS', got {value!r}")
+    days, hours, minutes, seconds = parts
+    return ((days * 24 + hours) * 60 + minutes) * 60 + seconds
+
+
+def fitted_steps(max_steps: int, done: int, rate: float, remaining_s: float, safety: float) -> int:
+    """Steps of the whole run that fit: ``done`` plus what ``rate`` steps/s make in ``safety * remaining_s``,
+    at most ``max_steps``."""
+    return int(min(max_steps, done + max(0.0, rate * remaining_s * safety)))
+
+
+class TimeBudget(Callback):
+    """Shrink ``max_steps`` (and the schedule with it) to what fits in ``budget_s`` seconds of ``fit``.
+
+    Args:
+        budget_s: wall-clock seconds for the whole fit (validation included); None disables the callback.
+        calibration_steps: steps timed before deciding.
+        safety: fraction of the remaining time planned for (validation runs and rate noise take the rest).
+
+    The LightningModule must have ``set_schedule_scale(factor)`` (see
+    :meth:`gnsx.system.GNSSystem.set_schedule_scale`).
+    """
+
+    def __init__(self, budget_s: float | None, calibration_steps: int = 200, safety: float = 0.9):
+        if calibration_steps < 1:
+            raise ValueError(f"TimeBudget: calibration_steps must be >= 1, got {calibration_steps}")
+        if not 0 < safety <= 1:
+            raise ValueError(f"TimeBudget: safety must be in (0, 1], got {safety}")
+        self.budget_s = budget_s
+        self.calibration_steps = calibration_steps
+        self.safety = safety
+        self.planned_steps: int | None = None  # the configured max_steps
+        self.fitted: int | None = None  # the step count the schedule was fitted to (None: not shrunk)
+        self._start: float | None = None
+        self._start_step = 0
+        self._validation_start: float | None = None
+        self._validation_s = 0.0  # validation wall time so far (this fit)
+        self._validations = 0
+
+    # -- checkpoint state: a resumed run keeps its fitted schedule -------------------------------------------
+    def state_dict(self) -> dict:
+        return {"planned_steps": self.planned_steps, "fitted": self.fitted}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.planned_steps = state_dict.get("planned_steps")
+        self.fitted = state_dict.get("fitted")
+
+    def _apply(self, trainer, pl_module) -> None:
+        # The epoch loop holds the step limit (FitLoop.max_steps is a read-only view of it).
+        trainer.fit_loop.epoch_loop.max_steps = self.fitted
+        pl_module.set_schedule_scale(self.fitted / self.planned_steps)
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self._start = time.perf_counter()
+        self._start_step = trainer.global_step
+        if self.planned_steps is None:
+            self.planned_steps = int(trainer.max_steps)
+        if self.fitted is not None:  # resumed: the schedule was fitted before the interruption
+            self._apply(trainer, pl_module)
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        if self.budget_s is None or self.fitted is not None or self._start is None:
+            return
+        done = trainer.global_step - self._start_step
+        if done != self.calibration_steps:
+            return
+        elapsed = time.perf_counter() - self._start
+        rate = done / elapsed
+        steps = fitted_steps(
+            self.planned_steps, trainer.global_step, rate, self.budget_s - elapsed, self.safety
+        )
+        if steps >= self.planned_steps:
+            log.info(
+                "Time budget: %.1f steps/s, all %d steps fit in %.0f s",
+                rate,
+                self.planned_steps,
+                self.budget_s,
+            )
+            self.budget_s = None  # nothing to do
+            return
+        self.fitted = max(steps, trainer.global_step + 1)
+        self._apply(trainer, pl_module)
+        factor = self.fitted / self.planned_steps
+        log.warning(
+            "Time budget: at %.1f steps/s only %d of %d steps fit in %.0f s; training %d steps with the LR "
+            "and noise schedule compressed to them (x%.3f)",
+            rate, self.fitted, self.planned_steps, self.budget_s, self.fitted, factor,
+        )  # fmt: skip
+
+    def on_validation_start(self, trainer, pl_module) -> None:
+        self._validation_start = time.perf_counter()
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        """Re-plan with the measured cost of a validation run (shrink only, so a cap never cuts the run)."""
+        if self._validation_start is None:
+            return
+        self._validation_s += time.perf_counter() - self._validation_start
+        self._validations += 1
+        self._validation_start = None
+        if self.budget_s is None or self._start is None or self.fitted is None:
+            return
+        elapsed = time.perf_counter() - self._start
+        done = trainer.global_step - self._start_step
+        training_s = elapsed - self._validation_s
+        if done <= 0 or training_s <= 0:
+            return
+        interval = trainer.val_check_interval if isinstance(trainer.val_check_interval, int) else None
+        seconds_per_step = training_s / done
+        if interval:  # each further step also brings 1/interval of a validation run
+            seconds_per_step += self._validation_s / self._validations / interval
+        remaining = self.budget_s - elapsed
+        steps = fitted_steps(self.fitted, trainer.global_step, 1.0 / seconds_per_step, remaining, self.safety)
+        if steps < self.fitted:
+            log.warning("Time budget: validation runs cost %.1f s each; training %d steps instead of %d",
+                        self._validation_s / self._validations, steps, self.fitted)  # fmt: skip
+            self.fitted = max(steps, trainer.global_step + 1)
+            self._apply(trainer, pl_module)
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        target = self.fitted if self.fitted is not None else self.planned_steps
+        if target is not None and trainer.global_step < target:
+            log.warning(
+                "Training stopped at step %d of %d (a time cap, train.max_time, cut it short): the LR and "
+                "noise schedule did not complete.",
+                trainer.global_step, target,
+            )  # fmt: skip
