@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain evaluate simulate fig9-mini radius-mini fig9 radius report bench clean
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate fig9-mini radius-mini fig9 radius report bench clean
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -52,10 +52,21 @@ data-waterramps: install ## Generate the full WaterRamps-like preset (1000/100/1
 	$(PY) -m gnsx.data generate --preset waterramps --out data/waterramps
 
 PRETRAIN_DIR ?= outputs/pretrain/small
-pretrain: install ## Train the shipped weights (train=pretrain, 100k steps, hours on CPU; rerun to resume), then ship them
-	$(PY) train.py train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(ARGS) \
+pretrain: install ## Train shipped weights on CPU (400 training scenes, 100k steps, hours; rerun to resume), then ship them
+	$(PY) train.py data=small_400 train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(ARGS) \
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
 	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
+
+pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e-3, 4.5 min fitted schedule), then ship them
+	$(PY) train.py data=small_400 data.batch_size=32 data.num_workers=4 trainer=gpu train=pretrain \
+		train.max_steps=40000 train.max_time=00:00:04:30 train.fit_to_max_time=true train.lr_init=2e-3 \
+		train.val_every_n_steps=2000 train.val_max_trajectories=4 train.checkpoint_every_n_steps=500 \
+		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_DIR) $(ARGS)
+	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
+
+bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. ARGS='--batch-size 2 8 --threads 2'
+	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)
+	$(PY) -m gnsx.throughput --data $(DATA) $(ARGS)
 
 SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -69,6 +70,7 @@ def measure_training(
     windows: int = 5,
     device: str = "cpu",
     seed: int = 0,
+    devices: int = 1,
 ) -> dict:
     """Time ``steps`` optimizer steps after ``warmup`` of the Lightning training loop.
 
@@ -78,6 +80,8 @@ def measure_training(
         batch_size: graphs per step.
         steps, warmup, windows: timed steps, untimed first steps, windows the timed steps are cut into.
         device: ``"cpu"`` or ``"cuda"``.
+        devices: data-parallel processes (DDP; on the CPU over gloo, one per core with one thread each):
+            a step then takes ``batch_size`` samples on every process.
     Returns:
         ``{"model", "batch_size", "device", "threads", "steps_per_s", "samples_per_s", "ms_per_step",
         "window_steps_per_s": [...]}`` (rates are medians over the windows).
@@ -108,7 +112,8 @@ def measure_training(
     clock = _StepClock()
     trainer = L.Trainer(
         accelerator=device,
-        devices=1,
+        devices=devices,
+        strategy="ddp" if devices > 1 else "auto",
         max_steps=warmup + steps,
         limit_val_batches=0,
         num_sanity_val_steps=0,
@@ -130,8 +135,9 @@ def measure_training(
         "batch_size": batch_size,
         "device": device,
         "threads": torch.get_num_threads(),
+        "devices": devices,
         "steps_per_s": steps_per_s,
-        "samples_per_s": steps_per_s * batch_size,
+        "samples_per_s": steps_per_s * batch_size * devices,
         "ms_per_step": 1000.0 / steps_per_s,
         "window_steps_per_s": rates,
     }
@@ -149,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    parser.add_argument(
+        "--devices", type=int, default=1, help="DDP processes (CPU: one per core, --threads 1)"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = parser.parse_args(argv)
     if not (Path(args.data) / "metadata.json").is_file():
@@ -158,17 +167,31 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     results = []
-    print(f"{'model':<11} {'batch':>5} {'steps/s':>8} {'samples/s':>10} {'ms/step':>8}  device (threads)")
+    # Under DDP every process runs this; rank 0 alone prints (the launcher sets LOCAL_RANK for the others).
+    report = os.environ.get("LOCAL_RANK", "0") == "0"
+    if report:
+        print(f"{'model':<11} {'batch':>5} {'steps/s':>8} {'samples/s':>10} {'ms/step':>8}  device (threads)")
     for model in args.models:
         for batch_size in args.batch_size:
-            r = measure_training(args.data, model, batch_size, args.steps, args.warmup, device=args.device)
+            r = measure_training(
+                args.data,
+                model,
+                batch_size,
+                args.steps,
+                args.warmup,
+                device=args.device,
+                devices=args.devices,
+            )
             results.append(r)
+            if not report:
+                continue
             print(
                 f"{model:<11} {batch_size:>5} {r['steps_per_s']:>8.2f} {r['samples_per_s']:>10.1f} "
-                f"{r['ms_per_step']:>8.1f}  {r['device']} ({r['threads']})",
+                f"{r['ms_per_step']:>8.1f}  {r['device']} ({r['threads']})"
+                + (f" x {args.devices} DDP processes" if args.devices > 1 else ""),
                 flush=True,
             )
-    if args.json:
+    if args.json and report:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
     return 0

@@ -116,3 +116,37 @@ def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
     assert info["global_step"] == 5
     assert torch.load(dest / "model.ckpt", weights_only=False)["global_step"] == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "shipped"]
+
+
+def _free_fall_acceleration(simulator, height: float, speed: float, spacing: float = 0.015625) -> float:
+    """Median predicted vertical acceleration (m/s^2) of a 12 x 12 jittered block falling at ``speed`` m/s,
+    centred ``height`` above the floor, far from the side walls and with no ramp near."""
+    from gnsx.constants import WATER_PARTICLE_ID
+
+    dt = 0.0025  # the small preset's frame interval
+    generator = torch.Generator().manual_seed(0)
+    grid = torch.stack(torch.meshgrid(torch.arange(12.0), torch.arange(12.0), indexing="ij"), -1).reshape(
+        -1, 2
+    )
+    block = (grid - grid.mean(0)) * spacing + torch.tensor([0.5, 0.1 + height])
+    block = block + (torch.rand(block.shape, generator=generator) - 0.5) * 0.6 * spacing
+    step = torch.tensor([0.0, -speed * dt])  # displacement per frame
+    frames = [block - k * step for k in range(simulator.history, -1, -1)]  # oldest first
+    sequence = torch.stack(frames, dim=1)
+    with torch.no_grad():
+        normalized = simulator(sequence, torch.full((len(block),), WATER_PARTICLE_ID))
+    acceleration = normalized * simulator.acc_std + simulator.acc_mean  # per frame^2
+    return float((acceleration[:, 1] / dt**2).median())
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 2026-11-30: the shipped weights predict -10.3 to -12.5 m/s^2 for a block in free fall "
+    "(5-27% too much gravity), the GPU-trained candidate -5.9 to -9.6; issue 9's target is within 5% of g",
+)
+def test_shipped_model_falls_at_g():
+    """A learned simulator must get free flight right: a falling block accelerates at g (within 5%)."""
+    simulator = load_simulator(SHIPPED / "model.ckpt")
+    for height in (0.45, 0.6):
+        for speed in (0.0, 1.0):
+            assert _free_fall_acceleration(simulator, height, speed) == pytest.approx(-9.8, rel=0.05)
