@@ -513,7 +513,9 @@ def baseline_lines(summary: dict, colour: bool = False) -> list[str]:
     verdict = baseline_verdict(geomean, lo, hi)
     if verdict == DOES_NOT_BEAT:
         lines.append(alarm("MODEL DOES NOT BEAT THE PHYSICS-FREE BASELINE", colour))
-    if verdict is not None and interval_contains_one(lo, hi):
+    if not math.isfinite(lo):
+        lines.append("Too few trajectories to tell the model from the baseline (score 2 or more).")
+    elif verdict is not None and interval_contains_one(lo, hi):
         lines.append("The model cannot be told apart from the baseline (the interval contains 1).")
     elif verdict is not None and verdict != DOES_NOT_BEAT:
         lines.append("The model beats the physics-free baseline (the interval lies above 1).")
