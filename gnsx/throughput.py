@@ -8,7 +8,8 @@ median of the per-window rates over ``windows`` windows of ``steps // windows`` 
 other jobs on a shared machine moves it less than a plain mean would.
 
 The script imports only APIs that every gnsx version since the first has (``GNSSystem``,
-``ParticleDataModule``), so running it from an older checkout measures the older code the same way::
+``ParticleDataModule``, ``gnsx.benchmark.MODELS``), so running it from an older checkout measures the older
+code the same way::
 
     python -m gnsx.throughput --data data/small --batch-size 2 8 --threads 2
     (cd old-checkout && python /path/to/gnsx/throughput.py --data ... )   # the same loop on older code
@@ -29,24 +30,9 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
+from gnsx.benchmark import MODELS
 from gnsx.datamodule import ParticleDataModule
 from gnsx.system import GNSSystem
-
-#: Architectures as LearnedSimulator arguments (conf/model/*.yaml; the wall clip does not change the cost).
-MODELS = {
-    "simplified": {},
-    "original": {
-        "latent_size": 128,
-        "mp_steps": 10,
-        "mlp_hidden_size": 128,
-        "mlp_hidden_layers": 2,
-        "history": 5,
-        "type_encoding": "embedding",
-        "wall_clip": (-1.0, 1.0),
-        "edge_residual": True,
-        "self_edges": True,
-    },
-}
 
 
 class _StepClock(Callback):
@@ -76,7 +62,7 @@ def measure_training(
 
     Args:
         data_root: a gnsx dataset (its train split is sampled, its metadata configures the model).
-        model: a key of :data:`MODELS`.
+        model: a key of :data:`gnsx.benchmark.MODELS`.
         batch_size: graphs per step.
         steps, warmup, windows: timed steps, untimed first steps, windows the timed steps are cut into.
         device: ``"cpu"`` or ``"cuda"``.

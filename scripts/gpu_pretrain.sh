@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# One prepared GPU session (the `device` tool's H100/H200; see README "GPU"): training throughput of the code
-# before and after the fast path, then a time-budgeted pretrain of the small preset with 400 training
-# trajectories. Everything it measures lands in $OUT (at most 8 files). Needs .whl (hydra-core, omegaconf,
-# antlr4, POT, crc32c, tfrecord wheels for the image's Python) and .old (gnsx of the previous commit) carried.
+# One prepared GPU session (the `device` tool's H100/H200; figures in README "Decisions"): training throughput
+# of the code before and after the fast path, then a time-budgeted pretrain of the small preset with 400
+# training trajectories. Everything it measures lands in $OUT (at most 8 files). Needs, carried:
+#   .whl  hydra-core, omegaconf, antlr4 (pip wheel), POT, crc32c, tfrecord wheels for the image's Python 3.12
+#   .old  the gnsx package of the commit to compare with (git worktree add /tmp/old e4609fc && cp -r
+#         /tmp/old/gnsx .old/gnsx); SKIP_BENCH=1 skips the comparison.
 #   DRY=1 OUT=/tmp/out bash scripts/gpu_pretrain.sh     # the same steps on this CPU, tiny, to catch errors
 set -euo pipefail
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WANDB_MODE=offline
