@@ -38,7 +38,7 @@ from gnsx.datamodule import ParticleDataModule
 from gnsx.evaluate import evaluate_run
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.system import GNSSystem
-from gnsx.time_budget import TimeBudget, parse_duration
+from gnsx.time_budget import TimeBudget, TrainingClock, parse_duration
 
 log = logging.getLogger("gnsx")
 
@@ -201,53 +201,6 @@ class DivergenceGuard(Callback):
         loss = outputs["loss"] if isinstance(outputs, dict) else outputs
         if loss is not None and not bool(torch.isfinite(loss.detach()).all()):
             raise Diverged(f"training loss is {float(loss.detach()):g} at step {trainer.global_step}")
-
-
-class TrainingClock(Callback):
-    """Wall time and optimizer steps of ``trainer.fit``; ``steps_per_s`` leaves validation rollouts out.
-
-    Readable after a failed fit too: an unfinished fit is timed up to its last finished step.
-    """
-
-    def __init__(self):
-        self._start: float | None = None
-        self._last: float | None = None
-        self._first_step = 0
-        self._last_step = 0
-        self._validation_start: float | None = None
-        self.validation_s = 0.0
-
-    def on_train_start(self, trainer, pl_module) -> None:
-        self._start = self._last = time.perf_counter()
-        self._first_step = self._last_step = trainer.global_step
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
-        self._last, self._last_step = time.perf_counter(), trainer.global_step
-
-    def on_validation_start(self, trainer, pl_module) -> None:
-        self._validation_start = time.perf_counter()
-
-    def on_validation_end(self, trainer, pl_module) -> None:
-        if self._validation_start is not None:
-            self.validation_s += time.perf_counter() - self._validation_start
-            self._validation_start = None
-
-    def on_train_end(self, trainer, pl_module) -> None:
-        self._last, self._last_step = time.perf_counter(), trainer.global_step
-
-    def summary(self) -> dict[str, float | int | None]:
-        """``train_wall_s`` (s, validation included), ``train_steps`` (optimizer steps of this fit, a resumed
-        run counts only its own), ``steps_per_s`` (validation excluded; None before the first step)."""
-        if self._start is None:
-            return {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
-        wall = self._last - self._start
-        steps = self._last_step - self._first_step
-        training = wall - self.validation_s
-        return {
-            "train_wall_s": wall,
-            "train_steps": steps,
-            "steps_per_s": steps / training if steps > 0 and training > 0 else None,
-        }
 
 
 def one_line(error: BaseException, limit: int = 300) -> str:
@@ -455,12 +408,12 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
     system = build_system(cfg, datamodule)
     record["model_config"] = model_summary(cfg, system)
     record["parameters"] = system.simulator.num_parameters()
-    clock = TrainingClock()
+    if cfg.train.fit_to_max_time and cfg.train.max_time is not None:
+        # A TimeBudget is a TrainingClock that also fits the run to its budget.
+        clock = TimeBudget(parse_duration(cfg.train.max_time), int(cfg.train.calibration_steps))
+    else:
+        clock = TrainingClock()
     callbacks = [clock, DivergenceGuard()]
-    if cfg.train.get("fit_to_max_time", False) and cfg.train.max_time is not None:
-        callbacks.append(
-            TimeBudget(parse_duration(cfg.train.max_time), int(cfg.train.get("calibration_steps", 200)))
-        )
     trainer = build_trainer(cfg, run_dir, loggers, callbacks=callbacks)
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:

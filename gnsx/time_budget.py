@@ -1,4 +1,4 @@
-"""Fit a training run's step count, and its LR and noise schedules, to a wall-clock budget.
+"""Training wall time (:class:`TrainingClock`), and fitting a run's steps and LR/noise schedule to a budget.
 
 The demo trains for a fixed time on machines of unknown speed. A step-based schedule cut short by a time cap
 stops with the learning rate still high and the noise still large, silently. :class:`TimeBudget` instead
@@ -42,7 +42,56 @@ def fitted_steps(max_steps: int, done: int, rate: float, remaining_s: float, saf
     return int(min(max_steps, done + max(0.0, rate * remaining_s * safety)))
 
 
-class TimeBudget(Callback):
+class TrainingClock(Callback):
+    """Wall time and optimizer steps of ``trainer.fit``; ``steps_per_s`` leaves validation rollouts out.
+
+    Readable after a failed fit too: an unfinished fit is timed up to its last finished step.
+    """
+
+    def __init__(self):
+        self._start: float | None = None
+        self._last: float | None = None
+        self._first_step = 0
+        self._last_step = 0
+        self._validation_start: float | None = None
+        self.validation_s = 0.0
+        self.validations = 0
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self._start = self._last = time.perf_counter()
+        self._first_step = self._last_step = trainer.global_step
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        self._last, self._last_step = time.perf_counter(), trainer.global_step
+
+    def on_validation_start(self, trainer, pl_module) -> None:
+        self._validation_start = time.perf_counter()
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        if self._validation_start is not None:
+            self.validation_s += time.perf_counter() - self._validation_start
+            self.validations += 1
+            self._validation_start = None
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        self._last, self._last_step = time.perf_counter(), trainer.global_step
+
+    def summary(self) -> dict[str, float | int | None]:
+        """``train_wall_s`` (s, validation included), ``train_steps`` (optimizer steps of this fit, a resumed
+        run counts only its own), ``steps_per_s`` (validation excluded; None before the first step)."""
+        if self._start is None:
+            return {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
+        wall = self._last - self._start
+        steps = self._last_step - self._first_step
+        training = wall - self.validation_s
+        return {
+            "train_wall_s": wall,
+            "train_steps": steps,
+            "steps_per_s": steps / training if steps > 0 and training > 0 else None,
+        }
+
+
+class TimeBudget(TrainingClock):
     """Shrink ``max_steps`` (and the schedule with it) to what fits in ``budget_s`` seconds of ``fit``.
 
     Args:
@@ -59,16 +108,12 @@ class TimeBudget(Callback):
             raise ValueError(f"TimeBudget: calibration_steps must be >= 1, got {calibration_steps}")
         if not 0 < safety <= 1:
             raise ValueError(f"TimeBudget: safety must be in (0, 1], got {safety}")
+        super().__init__()
         self.budget_s = budget_s
         self.calibration_steps = calibration_steps
         self.safety = safety
         self.planned_steps: int | None = None  # the configured max_steps
         self.fitted: int | None = None  # the step count the schedule was fitted to (None: not shrunk)
-        self._start: float | None = None
-        self._start_step = 0
-        self._validation_start: float | None = None
-        self._validation_s = 0.0  # validation wall time so far (this fit)
-        self._validations = 0
 
     # -- checkpoint state: a resumed run keeps its fitted schedule -------------------------------------------
     def state_dict(self) -> dict:
@@ -84,17 +129,17 @@ class TimeBudget(Callback):
         pl_module.set_schedule_scale(self.fitted / self.planned_steps)
 
     def on_train_start(self, trainer, pl_module) -> None:
-        self._start = time.perf_counter()
-        self._start_step = trainer.global_step
+        super().on_train_start(trainer, pl_module)
         if self.planned_steps is None:
             self.planned_steps = int(trainer.max_steps)
         if self.fitted is not None:  # resumed: the schedule was fitted before the interruption
             self._apply(trainer, pl_module)
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        super().on_train_batch_end(trainer, pl_module, outputs, batch, batch_idx)
         if self.budget_s is None or self.fitted is not None or self._start is None:
             return
-        done = trainer.global_step - self._start_step
+        done = trainer.global_step - self._first_step
         if done != self.calibration_steps:
             return
         elapsed = time.perf_counter() - self._start
@@ -120,36 +165,30 @@ class TimeBudget(Callback):
             rate, self.fitted, self.planned_steps, self.budget_s, self.fitted, factor,
         )  # fmt: skip
 
-    def on_validation_start(self, trainer, pl_module) -> None:
-        self._validation_start = time.perf_counter()
-
     def on_validation_end(self, trainer, pl_module) -> None:
         """Re-plan with the measured cost of a validation run (shrink only, so a cap never cuts the run)."""
-        if self._validation_start is None:
-            return
-        self._validation_s += time.perf_counter() - self._validation_start
-        self._validations += 1
-        self._validation_start = None
-        if self.budget_s is None or self._start is None or self.fitted is None:
+        super().on_validation_end(trainer, pl_module)
+        if self.validations == 0 or self.budget_s is None or self._start is None or self.fitted is None:
             return
         elapsed = time.perf_counter() - self._start
-        done = trainer.global_step - self._start_step
-        training_s = elapsed - self._validation_s
+        done = trainer.global_step - self._first_step
+        training_s = elapsed - self.validation_s
         if done <= 0 or training_s <= 0:
             return
         interval = trainer.val_check_interval if isinstance(trainer.val_check_interval, int) else None
         seconds_per_step = training_s / done
         if interval:  # each further step also brings 1/interval of a validation run
-            seconds_per_step += self._validation_s / self._validations / interval
+            seconds_per_step += self.validation_s / self.validations / interval
         remaining = self.budget_s - elapsed
         steps = fitted_steps(self.fitted, trainer.global_step, 1.0 / seconds_per_step, remaining, self.safety)
         if steps < self.fitted:
             log.warning("Time budget: validation runs cost %.1f s each; training %d steps instead of %d",
-                        self._validation_s / self._validations, steps, self.fitted)  # fmt: skip
+                        self.validation_s / self.validations, steps, self.fitted)  # fmt: skip
             self.fitted = max(steps, trainer.global_step + 1)
             self._apply(trainer, pl_module)
 
     def on_train_end(self, trainer, pl_module) -> None:
+        super().on_train_end(trainer, pl_module)
         target = self.fitted if self.fitted is not None else self.planned_steps
         if target is not None and trainer.global_step < target:
             log.warning(

@@ -17,8 +17,9 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from gnsx.pipeline import Diverged, DivergenceGuard, TrainingClock, as_divergence, one_line
+from gnsx.pipeline import Diverged, DivergenceGuard, as_divergence, one_line
 from gnsx.report import build_report, load_sweep
+from gnsx.time_budget import TrainingClock
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "sweeps"
