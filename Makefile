@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate fig9-mini radius-mini fig9 radius report bench clean
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -103,5 +103,37 @@ evaluate: install ## Evaluate checkpoint(s) on a split: make evaluate CKPT=<run 
 simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.ckpt> SCENE=scenes/two_blocks.yaml [ARGS=mpm=true]
 	$(PY) simulate.py checkpoint=$(CKPT) scene=$(SCENE) $(ARGS)
 
+hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scenes, 10x horizon): MPM vs raw vs held model
+	$(PY) -m gnsx.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)
+
 bench: install ## ms/frame and peak memory, simplified vs original GNS at WaterRamps size (ARGS='--device cuda --threads 1')
 	$(PY) -m gnsx.benchmark $(ARGS)
+
+bench-cull: install ## ms/frame with and without exact culling, 5 scenes at WaterRamps size and 10x (ARGS='--threads 2 --models simplified original')
+	$(PY) -m gnsx.benchmark --cull $(ARGS)
+
+# The perceptual study (issue 14, the paper's figure 10): docs/study.md.
+STUDY ?= day-one
+STUDY_DIR = studies/$(STUDY)
+STUDY_ORIGINAL ?=
+STUDY_TRAJECTORIES ?= 8
+STUDY_COMMA := ,
+STUDY_CKPTS = $(if $(STUDY_ORIGINAL),[$(STUDY_ORIGINAL)$(STUDY_COMMA)pretrained/small/model.ckpt],pretrained/small/model.ckpt)
+study: install ## Build a perceptual study: MPM vs shipped simplified weights [vs STUDY_ORIGINAL=<run|.ckpt>] into studies/<STUDY>
+	@[ ! -f $(STUDY_DIR)/answers.sqlite ] || { echo "$(STUDY_DIR) already has answers: choose another STUDY=<name>"; exit 2; }
+	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)
+	$(PY) evaluate.py 'checkpoint=$(STUDY_CKPTS)' data.root=$(DATA) max_trajectories=$(STUDY_TRAJECTORIES) threads=1 \
+		metrics.emd_every=0 metrics.timing_repeats=0 render.enabled=false logger=none hydra.run.dir=$(STUDY_DIR)/rollouts
+	$(PY) -m gnsx.study build --rollouts $(STUDY_DIR)/rollouts --out $(STUDY_DIR) --pairs-per-group $(STUDY_TRAJECTORIES) $(ARGS)
+
+study-serve: install ## Run studies/<STUDY> in the browser at localhost:8000 (ARGS='--host 0.0.0.0': your local network)
+	$(PY) -m gnsx.study serve $(STUDY_DIR) $(ARGS)
+
+install-browser: ## Debian's chromium + chromedriver for the study's browser test (apt; nothing if installed)
+	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then \
+		echo "chromium and chromedriver are installed"; \
+	else \
+		sudo=$$([ "$$(id -u)" = 0 ] || echo sudo); \
+		$$sudo apt-get update -qq && \
+		$$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
+	fi

@@ -6,7 +6,9 @@
 
 Everything lands in the Hydra run directory (outputs/evaluate/<date>/<time>/): results.json, per model
 trajectories.csv, per_frame.csv and rollouts/*.npz, and comparison.gif + strip.png. The returned value (the
-first model's rollout MSE) is what Hydra sweepers optimise.
+first model's rollout MSE) is what Hydra sweepers optimise. Bad input (a file that is not a checkpoint, a
+model unlike the data, NaN in the data, a bad override) prints one line and exits 2; ``--debug`` shows the
+traceback.
 """
 
 from __future__ import annotations
@@ -14,19 +16,24 @@ from __future__ import annotations
 from pathlib import Path
 
 import hydra
-import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from gnsx.evaluate import evaluate_checkpoints
-from gnsx.pipeline import build_loggers
+from gnsx.cli import hydra_task, run_hydra
+from gnsx.config_checks import check_evaluate_config
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
+@hydra_task
 def main(cfg: DictConfig) -> float:
+    check_evaluate_config(cfg)
+    # Imported here: a bad override fails in a second, without loading torch.
+    from gnsx.evaluate import evaluate_checkpoints
+    from gnsx.pipeline import build_loggers
+    from gnsx.threads import apply_threads
+
     run_dir = Path(HydraConfig.get().runtime.output_dir)
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
+    apply_threads(cfg.threads)
     checkpoints = list(cfg.checkpoint) if isinstance(cfg.checkpoint, ListConfig) else [cfg.checkpoint]
     loggers = build_loggers(cfg, run_dir)
     try:
@@ -49,6 +56,7 @@ def main(cfg: DictConfig) -> float:
             strip_every=cfg.render.strip_every,
             strip_count=cfg.render.strip_count,
             loggers=loggers,
+            allow_mismatch=bool(OmegaConf.select(cfg, "allow_mismatch", default=False)),
         )
         for logger in loggers:
             logger.finalize("success")
@@ -62,4 +70,4 @@ def main(cfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
-    main()
+    run_hydra(main)

@@ -7,40 +7,65 @@ Hydra (conf/simulate.yaml).
 
 Writes into the Hydra run directory (outputs/simulate/<date>/<time>/): scene.yaml, rollout.npz, rollout.gif,
 strip.png and, with mpm=true, comparison.gif (MPM | model), rollout.pkl (DeepMind's format) and errors.json.
-See gnsx/scene_rollout.py for the scene format and how the model's first frames are made.
+See gnsx/scene_rollout.py for the scene format and how the model's first frames are made. Bad input (a scene
+with an unknown key, a model of another preset than ``preset``, a negative seed, a file that is not a
+checkpoint) prints one line and exits 2; ``--debug`` shows the traceback. The rollout is held by the scene's
+walls and ramps (gnsx/model/boundary.py); one that still blows up (NaN, or a particle beyond the blow-up speed
+of gnsx/health.py) prints a warning, writes its files and exits 3.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import hydra
-import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx.checkpoints import checkpoint_path, load_simulator, model_label
-from gnsx.mpm.presets import get_preset
-from gnsx.mpm.scenes import Scene
-from gnsx.scene_rollout import load_scene, simulate_to_folder
+from gnsx.cli import hydra_task, run_hydra
+from gnsx.config_checks import check_simulate_config
+from gnsx.errors import ConfigError
+
+#: Exit status of a rollout that blew up (NaN, or a particle beyond the blow-up speed; gnsx/health.py).
+EXIT_BLEW_UP = 3
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="simulate")
+@hydra_task
 def main(cfg: DictConfig) -> None:
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
+    check_simulate_config(cfg)
+    # Imported here: a bad override fails in a second, without loading torch.
+    from gnsx.checkpoints import check_fits, checkpoint_path, load_simulator, model_label
+    from gnsx.mpm.presets import PRESETS, get_preset
+    from gnsx.mpm.scenes import Scene
+    from gnsx.scene_rollout import load_scene, simulate_to_folder
+    from gnsx.threads import apply_threads
+
+    try:
+        preset = get_preset(cfg.preset)
+    except KeyError as error:
+        raise ConfigError(f"preset={cfg.preset}", str(error.args[0])) from None
     if isinstance(cfg.scene, DictConfig):
         scene = Scene.from_dict(OmegaConf.to_container(cfg.scene, resolve=True), where="scene (override)")
     else:
         scene = load_scene(cfg.scene)
     checkpoint = checkpoint_path(cfg.checkpoint)
     simulator = load_simulator(checkpoint, cfg.device)
+    check_simulate_config(cfg, input_frames=simulator.input_frames)
+    if not cfg.get("allow_mismatch", False):
+        bounds = [list(preset.bounds)] * 2
+        trained = [p.name for p in PRESETS.values() if p.default_connectivity_radius == simulator.radius]
+        hint = f"; use preset={trained[0]}" if trained else "; use the preset it was trained on"
+        check_fits(simulator, str(checkpoint), bounds, preset.default_connectivity_radius, 2,
+                   f"preset={preset.name}", hint + " (or allow_mismatch=true to run it anyway)")  # fmt: skip
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    apply_threads(cfg.threads)
     summary = simulate_to_folder(
         simulator,
         scene,
-        get_preset(cfg.preset),
+        preset,
         run_dir,
         num_frames=cfg.num_frames,
         seed=int(cfg.seed),
@@ -57,7 +82,10 @@ def main(cfg: DictConfig) -> None:
     print(json.dumps({k: v for k, v in summary.items() if k != "files"}, indent=2))
     for name, path in summary["files"].items():
         print(f"{name:>16}: {path}")
+    if summary["blew_up"]:
+        # The files are written (to look at what went wrong), but a script must not take this for a result.
+        sys.exit(EXIT_BLEW_UP)
 
 
 if __name__ == "__main__":
-    main()
+    run_hydra(main)

@@ -6,25 +6,26 @@
     python train.py -m model.latent_size=32,64 model.mp_steps=3,5  # Hydra multirun sweep
 
 A run writes everything into its Hydra run directory: checkpoints/, csv/, wandb/, results.json and the test
-rollout animation. The returned value (test rollout MSE) is what Hydra sweepers optimise.
+rollout animation. The returned value (test rollout MSE) is what Hydra sweepers optimise. Bad input (an
+unknown override, a bad value, a missing or bad dataset or checkpoint) prints one line and exits 2;
+``--debug`` (or GNSX_DEBUG=1) shows the traceback (docs/robustness.md).
 """
 
 from __future__ import annotations
 
-import logging
-
 import hydra
 from omegaconf import DictConfig
 
-from gnsx.pipeline import run_training
-
-log = logging.getLogger(__name__)
+from gnsx.cli import hydra_task, run_hydra
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
+@hydra_task
 def main(cfg: DictConfig) -> float | None:
+    from gnsx.pipeline import run_training  # imported here: a bad override fails in a second, without torch
+
     return run_training(cfg)
 
 
 if __name__ == "__main__":
-    main()
+    run_hydra(main)

@@ -19,6 +19,11 @@ Memory:
 CLI (``make bench``): ``python -m gnsx.benchmark`` times the simplified and the original GNS (untrained
 weights: speed does not depend on them) on the same WaterRamps-sized packed scene, one after the other in
 one run, and prints both with their ratio.
+
+Culling (``make bench-cull``): ``python -m gnsx.benchmark --cull`` times frames with and without exact
+culling (:mod:`gnsx.model.culling`), interleaved frame by frame in one run, on the scenes of
+:data:`CULL_SCENES` at WaterRamps size and 10x, next to the fraction of work the culling plan keeps
+(``--freeze-speed`` adds approximate freezing).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import numpy as np
 import torch
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.model.culling import plan_culling
 from gnsx.model.simulator import LearnedSimulator
 
 #: DeepMind's WaterRamps facts (DESIGN.md section 3): domain, radius, spacing, statistics, particle count.
@@ -234,7 +240,7 @@ def build_model(name: str, radius: float = WATERRAMPS["radius"], **overrides) ->
     if name not in MODELS:
         raise KeyError(f"unknown model {name!r}; known: {sorted(MODELS)}")
     facts = {k: WATERRAMPS[k] for k in ("bounds", "vel_mean", "vel_std", "acc_mean", "acc_std")}
-    return LearnedSimulator(dim=2, radius=radius, **facts, **(MODELS[name] | overrides)).eval()
+    return LearnedSimulator(dim=2, radius=radius, **(facts | MODELS[name] | overrides)).eval()
 
 
 def compare_models(
@@ -279,27 +285,401 @@ def format_results(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+# -- culling: scenes where leaving work out pays -------------------------------------------------------------
+#: The culling benchmark's scenes (:func:`cull_scene`), and what each is for.
+CULL_SCENES = {
+    "packed": "packed_scene: water at rest, 6% static ramp rows (the bench default; little to cull)",
+    "long_ramps": "a falling block above six long, thick static ramps crossing the box",
+    "container": "sloshing water in a container with thick static walls, taller than the water",
+    "static_floor": "a water block on a thick static floor spanning the box",
+    "resting_pool": "a pool at rest filling the bottom, a small block falling in (no static particle)",
+}
+
+
+def _lattice(lower: Sequence[float], upper: Sequence[float], spacing: float) -> np.ndarray:
+    """``[K, 2]`` points of a square lattice of ``spacing`` filling ``[lower, upper)`` (data units)."""
+    axes = [np.arange(lo, hi - 1e-9, spacing) for lo, hi in zip(lower, upper)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def cull_scene(
+    name: str, scale: float = 1.0, history: int = 1, spacing: float = WATERRAMPS["spacing"], seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor, list[list[float]]]:
+    """One scene of :data:`CULL_SCENES` at ``scale`` times WaterRamps' size (~2,300 particles at 1).
+
+    Every length is a fraction of the box side ``L = 0.8 sqrt(scale)`` (walls at 0.1 and 0.1 + L), thicknesses
+    included, at a fixed particle spacing: particle counts grow with ``scale`` and the static share stays.
+    Water is a lattice jittered by up to 0.3 spacing; static particles sit on an exact lattice. The history
+    frames move the water at a constant per-frame velocity (falling or sloshing; 0 at rest).
+
+    Returns:
+        ``position_sequence [N, H + 1, 2]`` float32 (oldest first), ``particle_type [N]`` int64 (water, then
+        static) and the box ``bounds [[lo, hi], [lo, hi]]``.
+    """
+    if name == "packed":
+        count = int(round(WATERRAMPS["particles"] * scale))
+        bounds = [[0.1, 0.1 + 0.8 * math.sqrt(scale)]] * 2
+        sequence, particle_type = packed_scene(count, spacing, bounds, history, seed=seed)
+        return sequence, particle_type, bounds
+    side = 0.8 * math.sqrt(scale)
+    lo = 0.1
+
+    def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+        return _lattice((lo + x0 * side, lo + y0 * side), (lo + x1 * side, lo + y1 * side), spacing)
+
+    rest, fall, slosh = np.zeros(2), np.array([0.0, -2e-3]), np.array([1.5e-3, 0.0])
+    static = [np.zeros((0, 2))]
+    if name == "long_ramps":
+        water, velocity = [box(0.05, 0.62, 0.4, 0.97)], [fall]
+        thickness = 0.027  # 3 rows at 1x
+        for k in range(6):  # alternating slopes, stacked down the box
+            y = 0.08 + 0.085 * k
+            x0, x1 = (0.1, 0.9) if k % 2 else (0.0, 0.8)
+            ramp = box(x0, y, x1, y + thickness)
+            slope = 0.05 * (1 if k % 2 else -1)
+            ramp[:, 1] += slope * (ramp[:, 0] - lo) / 0.8
+            static.append(ramp)
+    elif name == "container":
+        water, velocity = [box(0.1, 0.1, 0.9, 0.32)], [slosh]
+        wall = 0.045
+        static += [box(0.1 - wall, 0.1 - wall, 0.9 + wall, 0.1), box(0.1 - wall, 0.1, 0.1, 0.85),
+                   box(0.9, 0.1, 0.9 + wall, 0.85)]  # fmt: skip
+    elif name == "static_floor":
+        water, velocity = [box(0.3, 0.2, 0.65, 0.5)], [fall]
+        static.append(box(0.0, 0.0, 1.0, 0.18))
+    elif name == "resting_pool":
+        water, velocity = [box(0.0, 0.0, 1.0, 0.27), box(0.45, 0.5, 0.55, 0.6)], [rest, fall]
+    else:
+        raise KeyError(f"unknown scene {name!r}; known: {sorted(CULL_SCENES)}")
+    rng = np.random.default_rng(seed)
+    water = [block + rng.uniform(-0.3 * spacing, 0.3 * spacing, block.shape) for block in water]
+    velocities = np.concatenate([np.broadcast_to(v, block.shape) for block, v in zip(water, velocity)])
+    static_position = np.concatenate(static)
+    position = np.concatenate([*water, static_position])
+    velocities = np.concatenate([velocities, np.zeros_like(static_position)])
+    from gnsx.scene_rollout import constant_velocity_history
+
+    sequence = constant_velocity_history(position, velocities, 1.0, history).swapaxes(0, 1)  # [N, H + 1, 2]
+    particle_type = np.concatenate(
+        [np.full(len(velocities) - len(static_position), WATER_PARTICLE_ID),
+         np.full(len(static_position), KINEMATIC_PARTICLE_ID)]
+    ).astype(np.int64)  # fmt: skip
+    return (
+        torch.from_numpy(np.ascontiguousarray(sequence)),
+        torch.from_numpy(particle_type),
+        [[lo, lo + side]] * 2,
+    )
+
+
+@torch.inference_mode()
+def measure_culling(
+    simulator: LearnedSimulator,
+    position_sequence: torch.Tensor,
+    particle_type: torch.Tensor,
+    warmup: int = 2,
+    repeats: int = 7,
+    freeze_speed: float | None = None,
+) -> dict:
+    """ms/frame of :meth:`LearnedSimulator.predict_positions` with and without culling, interleaved.
+
+    Each repeat times one frame with culling, one without (and one with freezing when ``freeze_speed`` is
+    given), in turn, so that load from other processes hits all modes alike; medians over the repeats. The
+    simulator's switches are restored.
+
+    Returns:
+        ``particles``, ``static_share``, ``edges`` (full graph), the culling plan's kept fractions
+        (``edges_kept``: edges of the culled graph over E; ``node_updates_kept`` and ``edge_updates_kept``:
+        MLP evaluations over the M steps, see :meth:`gnsx.model.culling.CullPlan.work`; computed on the full
+        graph), ``ms_cull``, ``ms_full``, ``ratio`` (full / cull), and with freezing ``ms_freeze``,
+        ``ratio_freeze`` (full / freeze) and ``frozen_share`` (of the dynamic particles).
+    """
+    device = simulator.acc_std.device
+    position_sequence, particle_type = position_sequence.to(device), particle_type.to(device)
+    dynamic = particle_type != KINEMATIC_PARTICLE_ID
+    _, edge_index, _ = simulator.build_graph(position_sequence, particle_type)
+    work = plan_culling(edge_index, dynamic, simulator.config["mp_steps"]).work()
+    switches = (simulator.cull, simulator.freeze_speed)
+    modes = {"cull": (True, None), "full": (False, None)}
+    if freeze_speed is not None:
+        modes["freeze"] = (True, freeze_speed)
+    times: dict[str, list[float]] = {mode: [] for mode in modes}
+    try:
+        for repeat in range(warmup + repeats):
+            for mode, (cull, freeze) in modes.items():
+                simulator.cull, simulator.freeze_speed = cull, freeze
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                start = time.perf_counter()
+                simulator.predict_positions(position_sequence, particle_type)
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                if repeat >= warmup:
+                    times[mode].append(1000 * (time.perf_counter() - start))
+        frozen = simulator.frozen_particles(position_sequence, particle_type) if freeze_speed else None
+    finally:
+        simulator.cull, simulator.freeze_speed = switches
+    ms = {mode: statistics.median(values) for mode, values in times.items()}
+    result = {
+        "particles": int(len(particle_type)),
+        "static_share": float((~dynamic).float().mean()),
+        "edges": int(edge_index.shape[1]),
+        "edges_kept": work["edges"],
+        "node_updates_kept": work["node_updates"],
+        "edge_updates_kept": work["edge_updates"],
+        "ms_cull": ms["cull"],
+        "ms_full": ms["full"],
+        "ratio": ms["full"] / ms["cull"],
+        "repeats": int(repeats),
+        "device": str(device),
+    }
+    if frozen is not None:
+        result |= {
+            "ms_freeze": ms["freeze"],
+            "ratio_freeze": ms["full"] / ms["freeze"],
+            "frozen_share": float(frozen.float().sum() / max(1, int(dynamic.sum()))),
+        }
+    return result
+
+
+def compare_culling(
+    models: Sequence[str] = ("simplified",),
+    scenes: Sequence[str] = tuple(CULL_SCENES),
+    scales: Sequence[float] = (1.0, 10.0),
+    device: str = "cpu",
+    warmup: int = 2,
+    repeats: int = 7,
+    freeze_speed: float | None = None,
+) -> list[dict]:
+    """:func:`measure_culling` of every model on every scene at every scale (the model's box fits the
+    scene's). Rows carry ``model``, ``scene`` and ``scale``."""
+    rows = []
+    for name in models:
+        for scale in scales:
+            for scene in scenes:
+                history = MODELS[name].get("history", 1)
+                sequence, particle_type, bounds = cull_scene(scene, scale, history)
+                simulator = build_model(name, bounds=bounds).to(device)
+                result = measure_culling(simulator, sequence, particle_type, warmup, repeats, freeze_speed)
+                rows.append({"model": name, "scene": scene, "scale": scale} | result)
+    return rows
+
+
+def format_culling(rows: Sequence[dict]) -> str:
+    """A markdown table of :func:`compare_culling`'s rows."""
+    freeze = any("ms_freeze" in r for r in rows)
+    header = ["model", "scene", "size", "particles", "static", "edges kept", "node updates kept", "ms cull",
+              "ms full", "full / cull"]  # fmt: skip
+    if freeze:
+        header += ["frozen", "ms freeze", "full / freeze"]
+    table = []
+    for r in rows:
+        cells = [r["model"], r["scene"], f"{r['scale']:g}x", f"{r['particles']:,}",
+                 f"{r['static_share']:.0%}", f"{r['edges_kept']:.0%} of {r['edges']:,}",
+                 f"{r['node_updates_kept']:.0%}",
+                 f"{r['ms_cull']:.1f}", f"{r['ms_full']:.1f}", f"{r['ratio']:.2f}x"]  # fmt: skip
+        if freeze:
+            cells += (
+                [f"{r['frozen_share']:.0%}", f"{r['ms_freeze']:.1f}", f"{r['ratio_freeze']:.2f}x"]
+                if "ms_freeze" in r
+                else ["", "", ""]
+            )
+        table.append(cells)
+    return _markdown(header, table)
+
+
+# -- approximate freezing: its error against the exact path --------------------------------------------------
+#: The freezing check's own scene (small preset's box, metres and m/s): a pool at rest over the whole floor
+#: and a block falling into its middle, so that most water is at rest and far from the motion for a while.
+FREEZE_POOL = {
+    "blocks": [{"lower": [0.1, 0.1], "upper": [0.9, 0.3], "velocity": [0.0, 0.0]},
+               {"lower": [0.45, 0.6], "upper": [0.55, 0.7], "velocity": [0.0, -1.0]}],
+    "ramps": [],
+}  # fmt: skip
+#: Frames predicted for a case without ground truth (the small preset's 250 frames less 2 given).
+FREEZE_STEPS = 248
+
+
+@torch.inference_mode()
+def freeze_check(
+    simulator: LearnedSimulator,
+    cases: Sequence[tuple[str, torch.Tensor, torch.Tensor, torch.Tensor | None]],
+    freeze_speed: float,
+    steps: int | None = None,
+    emd_every: int = 10,
+) -> list[dict]:
+    """Rollouts with approximate freezing against the exact path (culling on in both), case by case.
+
+    Args:
+        cases: ``(name, initial [N, H + 1, D], particle_type [N], truth [T, N, D] or None)``; truth frames
+            start after the initial ones.
+        freeze_speed: :attr:`LearnedSimulator.freeze_speed` of the frozen rollout (data units per frame).
+        steps: frames to predict (default: the truth's length, else :data:`FREEZE_STEPS`).
+    Returns:
+        one row per case: ``particles``, ``frames``, ``mse_vs_exact`` (position MSE per coordinate of the
+        frozen rollout against the exact one, dynamic particles, every frame), ``emd_vs_exact`` (mean Earth
+        Mover's distance between their dynamic particles every ``emd_every`` frames), ``frozen_share``
+        (frozen dynamic particles, mean over the same frames), ``ms_exact``, ``ms_freeze`` (median ms/frame
+        of one :meth:`~LearnedSimulator.predict_positions` on the frozen rollout's inputs at those frames,
+        the two modes interleaved frame by frame; the boundary of the rollout is not timed), ``ratio`` and,
+        with truth, ``rollout_mse_exact`` and ``rollout_mse_freeze`` (against it). The model's
+        ``freeze_speed`` is restored.
+    """
+    from gnsx.metrics import earth_movers_distance, position_mse
+    from gnsx.model.rollout import rollout
+
+    switch = simulator.freeze_speed
+    rows = []
+    try:
+        for name, initial, particle_type, truth in cases:
+            num_steps = steps or (len(truth) if truth is not None else FREEZE_STEPS)
+            dynamic = particle_type != KINEMATIC_PARTICLE_ID
+            modes = {"exact": None, "freeze": freeze_speed}
+            rollouts = {}
+            for mode, speed in modes.items():
+                simulator.freeze_speed = speed
+                rollouts[mode] = rollout(simulator, initial, particle_type, num_steps)
+            frozen, exact = rollouts["freeze"], rollouts["exact"]
+            every = list(range(emd_every - 1, num_steps, emd_every)) or [num_steps - 1]
+            frames = torch.cat([initial.transpose(0, 1), frozen])  # [H + 1 + T, N, D]
+            size = initial.shape[1]
+            windows = [frames[t + 1 : t + 1 + size].transpose(0, 1) for t in every]  # inputs of frame t + 1
+            held = [simulator.frozen_particles(window, particle_type) for window in windows]
+            # Speed: one frame of each mode in turn on the frozen rollout's own states (so other load hits
+            # both alike), the median per mode.
+            times: dict[str, list[float]] = {mode: [] for mode in modes}
+            for window in windows:
+                for mode, speed in modes.items():
+                    simulator.freeze_speed = speed
+                    start = time.perf_counter()
+                    simulator.predict_positions(window, particle_type)
+                    times[mode].append(1000 * (time.perf_counter() - start))
+            ms = {mode: statistics.median(values) for mode, values in times.items()}
+            row = {
+                "case": name,
+                "particles": int(len(particle_type)),
+                "frames": int(num_steps),
+                "mse_vs_exact": position_mse(frozen, exact, dynamic),
+                "emd_vs_exact": float(np.mean([
+                    earth_movers_distance(frozen[t, dynamic], exact[t, dynamic], method="auto") for t in every
+                ])),
+                "frozen_share": float(torch.stack(held)[:, dynamic].float().mean()),
+                "ms_exact": ms["exact"],
+                "ms_freeze": ms["freeze"],
+                "ratio": ms["exact"] / ms["freeze"],
+            }  # fmt: skip
+            if truth is not None:
+                truth = truth[:num_steps]
+                row["rollout_mse_exact"] = position_mse(exact, truth, dynamic)
+                row["rollout_mse_freeze"] = position_mse(frozen, truth, dynamic)
+            rows.append(row)
+    finally:
+        simulator.freeze_speed = switch
+    return rows
+
+
+def freeze_cases(data: str | Path, trajectories: int, history: int, split: str = "test") -> list[tuple]:
+    """The freezing check's cases: the first ``trajectories`` of a dataset split and :data:`FREEZE_POOL`
+    simulated with the small preset's MPM solver (~1 min), each with its ground truth, the model starting
+    from the truth's first ``history + 1`` frames."""
+    from gnsx.data.store import SplitReader
+    from gnsx.mpm.generate import simulate_scene
+    from gnsx.mpm.presets import get_preset
+    from gnsx.mpm.scenes import Scene
+
+    frames = history + 1
+    positions = []
+    reader = SplitReader(data, split)
+    for i in range(min(trajectories, len(reader))):
+        trajectory = reader[i]
+        positions.append((f"{split} {i}", np.array(trajectory.position), np.array(trajectory.particle_type)))
+    pool = simulate_scene(Scene.from_dict(FREEZE_POOL), get_preset("small"), seed=0)
+    positions.append(("pool", pool.position, pool.particle_type))
+    cases = []
+    for name, position, particle_type in positions:
+        position = torch.from_numpy(np.ascontiguousarray(position))
+        initial = position[:frames].transpose(0, 1)  # [N, H + 1, D]
+        cases.append((name, initial, torch.from_numpy(np.asarray(particle_type)), position[frames:]))
+    return cases
+
+
+def format_freeze(rows: Sequence[dict]) -> str:
+    """A markdown table of :func:`freeze_check`'s rows."""
+    header = ["case", "particles", "frames", "frozen", "MSE vs exact", "EMD vs exact", "rollout MSE exact",
+              "rollout MSE freeze", "ms exact", "ms freeze", "exact / freeze"]  # fmt: skip
+    cells = []
+    for r in rows:
+        truth = [f"{r[k]:.2e}" if k in r else "n/a" for k in ("rollout_mse_exact", "rollout_mse_freeze")]
+        cells.append([r["case"], f"{r['particles']:,}", str(r["frames"]), f"{r['frozen_share']:.0%}",
+                      f"{r['mse_vs_exact']:.2e}", f"{r['emd_vs_exact']:.2e}", *truth, f"{r['ms_exact']:.1f}",
+                      f"{r['ms_freeze']:.1f}", f"{r['ratio']:.2f}x"])  # fmt: skip
+    return _markdown(header, cells)
+
+
+def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in rows])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m gnsx.benchmark",
-        description="ms/frame and peak memory of the simplified and original GNS at WaterRamps size.",
+        description="ms/frame and peak memory of the simplified and original GNS at WaterRamps size; with "
+        "--cull, ms/frame with and without exact culling on scenes where it pays (make bench-cull).",
     )
-    parser.add_argument("--models", nargs="+", default=["simplified", "original"], choices=sorted(MODELS))
+    parser.add_argument("--models", nargs="+", default=None, choices=sorted(MODELS),
+                        help="default: both (simplified only with --cull)")  # fmt: skip
     parser.add_argument("--particles", type=int, default=WATERRAMPS["particles"])
     parser.add_argument("--spacing", type=float, default=WATERRAMPS["spacing"])
     parser.add_argument("--radius", type=float, default=WATERRAMPS["radius"])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--warmup", type=int, default=3)
-    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--warmup", type=int, default=None, help="untimed frames (default 3; 2 with --cull)")
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="timed frames (default 20; 7 per mode with --cull)"
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    cull = parser.add_argument_group("culling (--cull)")
+    cull.add_argument("--cull", action="store_true", help="time culling on/off (interleaved) per scene")
+    cull.add_argument("--scenes", nargs="+", default=list(CULL_SCENES), choices=list(CULL_SCENES))
+    cull.add_argument("--scales", nargs="+", type=float, default=[1.0, 10.0],
+                      help="sizes in multiples of WaterRamps' ~2,300 particles (default 1 10)")  # fmt: skip
+    cull.add_argument("--freeze-speed", type=float, default=None,
+                      help="also time approximate freezing at this speed (data units per frame)")  # fmt: skip
+    freeze = parser.add_argument_group("freezing error (--freeze-check, needs --freeze-speed)")
+    freeze.add_argument("--freeze-check", action="store_true",
+                        help="rollouts with freezing against the exact path: error and speed")  # fmt: skip
+    freeze.add_argument("--checkpoint", default="pretrained/small/model.ckpt")
+    freeze.add_argument("--data", default="data/small", help="dataset whose test split is rolled out")
+    freeze.add_argument("--trajectories", type=int, default=16)
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    results = compare_models(
-        args.models, args.particles, args.spacing, args.radius, args.device, args.warmup, args.repeats
-    )
-    print(format_results(results))
+    if args.freeze_check:
+        if args.freeze_speed is None:
+            parser.error("--freeze-check needs --freeze-speed")
+        from gnsx.checkpoints import load_simulator
+
+        simulator = load_simulator(args.checkpoint, args.device)
+        cases = freeze_cases(args.data, args.trajectories, simulator.history)
+        results = freeze_check(simulator, cases, args.freeze_speed)
+        print(f"freeze_speed {args.freeze_speed:g} (data units per frame), {args.checkpoint}")
+        print(format_freeze(results))
+    elif args.cull:
+        results = compare_culling(
+            args.models or ["simplified"], args.scenes, args.scales, args.device,
+            2 if args.warmup is None else args.warmup, 7 if args.repeats is None else args.repeats,
+            args.freeze_speed,
+        )  # fmt: skip
+        threads = torch.get_num_threads()
+        print(f"ms/frame: median of interleaved frames, graph build included; {threads} torch threads")
+        print(format_culling(results))
+    else:
+        results = compare_models(
+            args.models or ["simplified", "original"], args.particles, args.spacing, args.radius, args.device,
+            3 if args.warmup is None else args.warmup, 20 if args.repeats is None else args.repeats,
+        )  # fmt: skip
+        print(format_results(results))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
@@ -307,4 +687,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from gnsx.cli import run_main
+
+    sys.exit(run_main(main, user_errors=(ValueError,)))

@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader, Dataset
 from torch_geometric.data import Batch, Data
 
 from gnsx.data.metadata import Metadata
-from gnsx.data.store import SplitReader, load_metadata
+from gnsx.data.store import SplitReader, load_metadata, open_split
 from gnsx.data.trajectory import Trajectory
 
 
@@ -110,6 +110,7 @@ class ParticleDataModule(L.LightningDataModule):
         self.val_max_trajectories = val_max_trajectories
         self.test_max_trajectories = test_max_trajectories
         self._metadata: Metadata | None = None
+        self._checked: dict[str, SplitReader] = {}
 
     @property
     def metadata(self) -> Metadata:
@@ -118,12 +119,28 @@ class ParticleDataModule(L.LightningDataModule):
             self._metadata = load_metadata(self.root)
         return self._metadata
 
+    def check(self, splits: list[str]) -> None:
+        """Open ``splits`` and check them against the metadata (dimension) and for NaN/Inf positions
+        (:func:`~gnsx.data.store.open_split`), before training starts.
+
+        Raises:
+            DataError: naming the metadata or positions file, trajectory, frame and particle.
+        """
+        for split in splits:
+            self._checked[split] = open_split(self.root, split, self.metadata)
+
+    def _reader(self, split: str) -> SplitReader:
+        """A checked reader of ``split`` (checked now unless :meth:`check` did)."""
+        if split not in self._checked:
+            self.check([split])
+        return self._checked[split]
+
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit"):
-            self.train_set = FrameDataset(SplitReader(self.root, "train"), self.history)
-            self.val_set = TrajectoryDataset(SplitReader(self.root, "valid"), self.val_max_trajectories)
+            self.train_set = FrameDataset(self._reader("train"), self.history)
+            self.val_set = TrajectoryDataset(self._reader("valid"), self.val_max_trajectories)
         if stage in (None, "test"):
-            self.test_set = TrajectoryDataset(SplitReader(self.root, "test"), self.test_max_trajectories)
+            self.test_set = TrajectoryDataset(self._reader("test"), self.test_max_trajectories)
 
     def train_dataloader(self) -> DataLoader:
         return DataLoader(

@@ -8,6 +8,7 @@ trajectories) and :mod:`gnsx.checkpoints`; models are compared with :func:`gnsx.
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from gnsx.atomic import write_json
-from gnsx.checkpoints import load_simulator, model_label, slug
+from gnsx.checkpoints import check_fits, load_simulator, model_label, slug
 from gnsx.data.metadata import Metadata
+from gnsx.errors import ConfigError
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.scoring import (
     TrajectoryResult,
@@ -44,6 +46,14 @@ def render_comparison(first: dict, metadata: Metadata, path: Path, label: str) -
         frame_stride=2,
     )
     return save_animation(frames, path, fps=25)
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        payload = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return payload if isinstance(payload, dict) else {}
 
 
 def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, loggers: list) -> dict:
@@ -105,7 +115,9 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
             log.info("Animation (shipped weights): %s", path)
             results["pretrained"]["animation"] = str(path)
 
-    write_json(run_dir / "results.json", json_ready(results))
+    # Merged into the job's record (status, liveness), which stays readable while the evaluation runs.
+    path = run_dir / "results.json"
+    write_json(path, {**_read_json(path), **json_ready(results)})
     for logger in loggers:
         logger.log_metrics(loggable(summary, "test"))
     return summary
@@ -134,6 +146,7 @@ def evaluate_checkpoints(
     strip_every: int = 100,
     strip_count: int = 7,
     loggers: Sequence = (),
+    allow_mismatch: bool = False,
 ) -> dict:
     """Evaluate checkpoints on every trajectory of a split and write what a user needs to judge them.
 
@@ -159,29 +172,38 @@ def evaluate_checkpoints(
         checkpoints: ``.ckpt`` files or run directories.
         data_root: the gnsx dataset (its metadata gives bounds, dt and the neighbour radius).
         labels: one per checkpoint (default :func:`~gnsx.checkpoints.model_label`, made unique).
+        allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
+            connectivity radius more than 2x apart, :func:`~gnsx.checkpoints.check_fits`); refused otherwise.
         Others: see :func:`~gnsx.scoring.score_trajectory` and :mod:`gnsx.render`.
     Returns:
         the ``results.json`` payload.
     """
-    from gnsx.data.store import SplitReader, load_metadata
+    from gnsx.data.store import load_metadata, open_split
     from gnsx.datamodule import TrajectoryDataset
     from gnsx.rollout_io import Rollout, export_deepmind, save_rollout
 
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    metadata = load_metadata(data_root)
-    dataset = TrajectoryDataset(SplitReader(data_root, split), max_trajectories)
     if labels is not None and len(labels) != len(checkpoints):
-        raise ValueError(
-            f"{len(labels)} labels for {len(checkpoints)} checkpoints; give one label per checkpoint"
+        raise ConfigError(
+            f"labels={list(labels)}",
+            f"{len(labels)} labels for {len(checkpoints)} checkpoints; give one label per checkpoint",
         )
+    # Every input is read and checked before anything is written or rolled out.
+    simulators = [load_simulator(checkpoint, device) for checkpoint in checkpoints]
+    metadata = load_metadata(data_root)
+    dataset = TrajectoryDataset(open_split(data_root, split, metadata), max_trajectories)
+    for checkpoint, simulator in zip(checkpoints, simulators):
+        if not allow_mismatch:
+            target = f"the dataset {data_root} ({metadata.dim}-D)"
+            check_fits(simulator, str(checkpoint), metadata.bounds, metadata.default_connectivity_radius,
+                       metadata.dim, target)  # fmt: skip
+    out_dir.mkdir(parents=True, exist_ok=True)
     results = {"split": split, "data_root": str(data_root), "models": []}
     panels: list[np.ndarray] = []
     titles: list[str] = []
     shown: dict | None = None
     used: set[str] = set()
-    for k, checkpoint in enumerate(checkpoints):
-        simulator = load_simulator(checkpoint, device)
+    for k, (checkpoint, simulator) in enumerate(zip(checkpoints, simulators)):
         label = labels[k] if labels is not None else model_label(simulator)
         name = slug(label)
         while name in used:

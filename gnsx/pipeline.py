@@ -5,8 +5,11 @@ grouping.
 This is the one module that reads the composed config; everything it calls takes typed arguments.
 
 Every run writes ``results.json`` into its run directory (schema in :mod:`gnsx.report`): ``"status":
-"running"`` when it starts, ``"ok"`` or ``"failed"`` (with a one-line ``"error"``) when it ends. A job whose
-training loss or test rollout becomes NaN/Inf fails with an error starting ``"diverged:"``. In a Hydra
+"running"`` when it starts (with its pid, host and a heartbeat, :mod:`gnsx.runstate`), ``"ok"`` or
+``"failed"`` (with a one-line ``"error"``) when it ends, ``"interrupted"`` when a later run or reader finds
+it killed. Bad input is refused before anything is written (:func:`check_inputs`). A job whose training
+diverges (too many NaN/Inf steps in a row, :mod:`gnsx.numerics`) or whose test rollout becomes NaN/Inf
+fails with an error starting ``"diverged:"``. In a Hydra
 multirun a failed job returns NaN instead of raising, so the other jobs of the sweep still run (Hydra's
 launchers stop the whole sweep at the first exception); a single run re-raises after recording. Sweep configs
 (``sweeps/*.yaml``) add a ``sweep`` block: its name groups the wandb runs, and it asks for one rendered frame
@@ -28,16 +31,23 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from lightning.fabric.utilities.rank_zero import rank_zero_only
-from lightning.pytorch.callbacks import Callback, ModelCheckpoint, TQDMProgressBar
+from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from omegaconf import DictConfig, OmegaConf
 
+from gnsx import runstate
 from gnsx.atomic import write_json
+from gnsx.checkpoints import check_resume, checkpoint_path, read_checkpoint
+from gnsx.config_checks import check_train_config
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.datamodule import ParticleDataModule
+from gnsx.errors import ConfigError, GnsxError, RunFailed
 from gnsx.evaluate import evaluate_run
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.numerics import Diverged
+from gnsx.resilience import AtomicCheckpointIO, Heartbeat, remove_stale_temporaries, wall_clock_checkpoint
 from gnsx.system import GNSSystem
+from gnsx.threads import apply_threads
 from gnsx.time_budget import TimeBudget, TrainingClock, parse_duration
 
 log = logging.getLogger("gnsx")
@@ -63,10 +73,11 @@ def ensure_dataset(data_cfg: DictConfig) -> Path:
     if (root / "metadata.json").exists():
         return root
     if not data_cfg.generate_if_missing:
-        raise FileNotFoundError(
-            f"{root}: no dataset here (metadata.json missing). Generate one with "
+        raise ConfigError(
+            f"data.root={root}",
+            f"no dataset here ({root / 'metadata.json'} missing); generate one with "
             f"`python -m gnsx.data generate --preset {data_cfg.preset} --out {root}` or convert yours with "
-            f"`python -m gnsx.data convert SRC {root}`."
+            f"`python -m gnsx.data convert SRC {root}`",
         )
     from gnsx.mpm.generate import generate_dataset
     from gnsx.mpm.presets import get_preset
@@ -100,6 +111,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         lr_decay_end=int(train.lr_decay_end),
         loss=str(train.loss),
         huber_delta=float(train.huber_delta),
+        max_skipped_steps=int(OmegaConf.select(train, "max_skipped_steps", default=20)),
     )
 
 
@@ -138,19 +150,22 @@ def build_loggers(cfg: DictConfig, run_dir: Path, name: str | None = None, group
 
 
 def resolve_checkpoint(path: str | None) -> str | None:
-    """A .ckpt file, or a previous run directory (its ``checkpoints/last.ckpt``)."""
-    if path is None:
-        return None
-    p = Path(path)
-    if p.is_dir():
-        p = p / "checkpoints" / "last.ckpt"
-    if not p.is_file():
-        raise FileNotFoundError(f"{p}: no checkpoint to resume from")
-    return str(p)
+    """A .ckpt file, or a previous run directory (its ``checkpoints/last.ckpt``); None stays None.
+
+    Raises:
+        CheckpointError: naming ``train.ckpt_path`` and what is missing.
+    """
+    return None if path is None else str(checkpoint_path(path, name="train.ckpt_path"))
 
 
 def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list | None = None) -> L.Trainer:
-    """The Lightning Trainer of ``trainer/`` and ``train/``, with checkpointing and ``callbacks`` added."""
+    """The Lightning Trainer of ``trainer/`` and ``train/``, with checkpointing and ``callbacks`` added.
+
+    Checkpoints (``run_dir/checkpoints/``): the 5 most recent every ``train.checkpoint_every_n_steps``,
+    permanent ones every ``train.permanent_every_n_steps``, and ``last.ckpt`` also every
+    ``train.checkpoint_every_minutes`` of wall time; all written atomically (:mod:`gnsx.resilience`).
+    ``train.gradient_clip_val`` clips the gradient norm (null: no clipping).
+    """
     train = cfg.train
     ckpt_dir = run_dir / "checkpoints"
     running = ModelCheckpoint(
@@ -162,6 +177,7 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
         monitor="step",
         mode="max",
         save_last=True,
+        enable_version_counter=False,  # the wall-clock callback writes last.ckpt too: no last-v1.ckpt
     )
     permanent = ModelCheckpoint(
         dirpath=ckpt_dir / "permanent",
@@ -170,8 +186,16 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
         every_n_train_steps=int(train.permanent_every_n_steps),
         save_top_k=-1,
     )
+    checkpoints = [running, permanent]
+    minutes = OmegaConf.select(train, "checkpoint_every_minutes", default=None)
+    if minutes:
+        checkpoints.append(wall_clock_checkpoint(ckpt_dir, float(minutes)))
+    remove_stale_temporaries(ckpt_dir)
     return L.Trainer(
         **OmegaConf.to_container(cfg.trainer, resolve=True),
+        plugins=[AtomicCheckpointIO()],
+        gradient_clip_val=OmegaConf.select(train, "gradient_clip_val", default=None),
+        gradient_clip_algorithm="norm",
         max_steps=int(train.max_steps),
         max_time=train.max_time,
         val_check_interval=int(train.val_every_n_steps),
@@ -179,28 +203,15 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
         num_sanity_val_steps=0,
         log_every_n_steps=int(train.log_every_n_steps),
         logger=loggers if loggers else False,
-        callbacks=[running, permanent, TQDMProgressBar(refresh_rate=50), *(callbacks or [])],
+        callbacks=[*checkpoints, TQDMProgressBar(refresh_rate=50), *(callbacks or [])],
         default_root_dir=str(run_dir),
         enable_model_summary=True,
     )
 
 
 # -- one job: timing, divergence, results --------------------------------------------------------------------
-class Diverged(RuntimeError):
-    """The training loss or a test rollout became NaN or infinite; the message starts with ``"diverged:"``."""
-
-    def __init__(self, what: str):
-        super().__init__(f"diverged: {what}")
-
-
-class DivergenceGuard(Callback):
-    """Stops training with :class:`Diverged` at the first non-finite training loss (NaN spreads to every
-    weight within a step, so nothing after it is worth computing)."""
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
-        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
-        if loss is not None and not bool(torch.isfinite(loss.detach()).all()):
-            raise Diverged(f"training loss is {float(loss.detach()):g} at step {trainer.global_step}")
+# Diverged lives in gnsx.numerics (the system raises it after too many non-finite steps in a row); callers
+# that caught it from this module still can.
 
 
 def one_line(error: BaseException, limit: int = 300) -> str:
@@ -384,18 +395,21 @@ def _finish_wandb(results: dict) -> None:
     wandb.finish(exit_code=0 if results.get("status") == "ok" else 1)
 
 
-def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: list) -> float | None:
-    """Train, then evaluate on the test split; fills ``record`` and ``loggers`` as it goes (they survive a
-    failure). Returns the test rollout MSE (None when evaluation is off)."""
-    threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None) or cfg.get("threads")
-    if threads:
-        # Parallel jobs on one machine (the joblib launcher): n_jobs x threads should not exceed the cores.
-        torch.set_num_threads(int(threads))
-    L.seed_everything(int(cfg.seed), workers=True)
-    torch.set_float32_matmul_precision("high")
-    loggers.extend(
-        build_loggers(cfg, run_dir, name=record["name"], group=cfg.logger.group or record["sweep"])
-    )
+def check_inputs(cfg: DictConfig) -> ParticleDataModule:
+    """Everything a run reads, checked before it writes anything: the settings, the dataset (generated first
+    when missing and ``data.generate_if_missing``), every position of the splits it uses (NaN/Inf named by
+    file, trajectory and frame), and the checkpoint it resumes from (one of another model config is
+    refused, naming both configs).
+
+    Returns:
+        the data module of the checked dataset.
+    Raises:
+        GnsxError: one line naming the override, file, trajectory and frame.
+    """
+    check_train_config(cfg)
+    resume = resolve_checkpoint(cfg.train.ckpt_path)
+    if resume is not None:
+        read_checkpoint(resume)  # not a checkpoint, or truncated: said before minutes of data generation
     ensure_dataset(cfg.data)
     datamodule = ParticleDataModule(
         cfg.data.root,
@@ -405,6 +419,54 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
         val_max_trajectories=cfg.train.val_max_trajectories,
         test_max_trajectories=cfg.evaluate.max_trajectories,
     )
+    datamodule.check(["train", "valid", *(["test"] if cfg.evaluate.enabled else [])])
+    if resume is not None:
+        meta = datamodule.metadata
+        radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
+        check_resume(resume, architecture(cfg.model), meta.dim, float(radius), name="train.ckpt_path")
+    return datamodule
+
+
+def local_processes(cfg: DictConfig) -> int:
+    """Training processes of this node that share its CPU cores (DDP ranks; 1 otherwise)."""
+    devices = OmegaConf.select(cfg, "trainer.devices", default=1)
+    strategy = str(OmegaConf.select(cfg, "trainer.strategy", default="auto"))
+    return int(devices) if isinstance(devices, int) and "ddp" in strategy else 1
+
+
+def schedule_summary(cfg: DictConfig, trainer: L.Trainer, clock: TrainingClock, system: GNSSystem) -> dict:
+    """How many steps the run got against its schedule (also logged): ``global_step``, ``scheduled_steps``
+    (``train.max_steps``), ``fitted_steps`` (the time budget's, or None) and ``skipped_steps`` (NaN/Inf)."""
+    planned = getattr(clock, "planned_steps", None) or int(cfg.train.max_steps)
+    fitted = getattr(clock, "fitted", None)
+    done = int(trainer.global_step)
+    summary = {"global_step": done, "scheduled_steps": planned, "fitted_steps": fitted,
+               "skipped_steps": int(system.skipped.total)}  # fmt: skip
+    rate = clock.summary().get("steps_per_s")
+    fitted_text = f"; the time budget fitted the schedule to {fitted:,}" if fitted else ""
+    log.info(
+        "Steps: %s of %s scheduled (%.0f%%%s), %s steps/s on %d thread(s); %d skipped for a NaN/Inf loss or "
+        "gradient",
+        f"{done:,}", f"{planned:,}", 100.0 * done / planned, fitted_text,
+        f"{rate:.1f}" if rate else "?", torch.get_num_threads(), summary["skipped_steps"],
+    )  # fmt: skip
+    return summary
+
+
+def _train_and_evaluate(
+    cfg: DictConfig, run_dir: Path, record: dict, loggers: list, datamodule: ParticleDataModule
+) -> float | None:
+    """Train, then evaluate on the test split; fills ``record`` and ``loggers`` as it goes (they survive a
+    failure). Returns the test rollout MSE (None when evaluation is off)."""
+    # Parallel sweep jobs on one machine (the joblib launcher) set sweep.torch_threads: n_jobs x threads
+    # should not exceed the cores. Otherwise `threads` (auto: gnsx.threads).
+    threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None) or cfg.get("threads")
+    record["threads"] = apply_threads(threads, processes=local_processes(cfg))
+    L.seed_everything(int(cfg.seed), workers=True)
+    torch.set_float32_matmul_precision("high")
+    loggers.extend(
+        build_loggers(cfg, run_dir, name=record["name"], group=cfg.logger.group or record["sweep"])
+    )
     system = build_system(cfg, datamodule)
     record["model_config"] = model_summary(cfg, system)
     record["parameters"] = system.simulator.num_parameters()
@@ -413,13 +475,18 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
         clock = TimeBudget(parse_duration(cfg.train.max_time), int(cfg.train.calibration_steps))
     else:
         clock = TrainingClock()
-    callbacks = [clock, DivergenceGuard()]
-    trainer = build_trainer(cfg, run_dir, loggers, callbacks=callbacks)
+
+    def beat(fields: dict) -> None:
+        record.update(fields)
+        write_json(run_dir / "results.json", record)
+
+    trainer = build_trainer(cfg, run_dir, loggers, callbacks=[clock, Heartbeat(beat)])
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:
         trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))
     finally:
         record.update(clock.summary())
+        record.update(schedule_summary(cfg, trainer, clock, system))
     if not (cfg.evaluate.enabled and trainer.is_global_zero):
         return None
     # The benchmark runs where the model trained (Lightning moves it back to the CPU after fit).
@@ -451,36 +518,65 @@ def _train_and_evaluate(cfg: DictConfig, run_dir: Path, record: dict, loggers: l
 def run_training(cfg: DictConfig) -> float | None:
     """Train, then evaluate on the test split; returns the test rollout MSE (None when evaluation is off).
 
-    Writes ``results.json`` (see the module docstring). In a multirun a failed job returns NaN; a single run
-    re-raises.
+    Checks every input first (:func:`check_inputs`): bad input raises a one-line
+    :class:`~gnsx.errors.GnsxError` before anything is written (a multirun job records it and returns
+    NaN). Then writes ``results.json`` (see the module docstring), "running" with the process's liveness
+    (:mod:`gnsx.runstate`) and a heartbeat while it trains; a killed earlier run in this directory, and the
+    run this one resumes from, are marked "interrupted". In a multirun a failed job returns NaN; a single run
+    re-raises (``gnsx.cli`` prints bad input and divergence as one line).
     """
     start = time.perf_counter()
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     identity = job_identity(cfg, hydra_cfg)
-    record: dict[str, Any] = {"status": "running", "error": None, **identity, "run_dir": str(run_dir)}
     results_path = run_dir / "results.json"
     writer = rank_zero_only.rank == 0  # DDP: one process writes the results
+    bad_input: GnsxError | None = None
+    datamodule: ParticleDataModule | None = None
+    try:
+        datamodule = check_inputs(cfg)
+    except GnsxError as error:
+        if not identity["multirun"]:
+            raise  # nothing written: an earlier results.json in this folder stays as it was
+        bad_input = error  # a sweep job records it below, like any failure
+    run_dir.mkdir(parents=True, exist_ok=True)
+    record: dict[str, Any] = {"status": "running", "error": None, **identity, "run_dir": str(run_dir)}
     if writer:
+        previous = runstate.mark_interrupted(results_path)
+        if previous is not None:
+            log.warning("%s: the previous run here was %s", results_path, previous["error"])
+            record["previous"] = {key: previous.get(key) for key in ("status", "error", "global_step")}
+        resumed = _run_dir_of(cfg.train.ckpt_path)
+        if resumed is not None and resumed.resolve() != run_dir.resolve():
+            runstate.mark_interrupted(resumed / "results.json", resumed_in=str(run_dir))
+        record.update(runstate.liveness())
         write_json(results_path, record)
     loggers: list = []
     result: float | None = None
     try:
-        result = _train_and_evaluate(cfg, run_dir, record, loggers)
+        if bad_input is not None:
+            # The sweep's wandb group still shows the job (finished with exit code 1).
+            loggers.extend(build_loggers(cfg, run_dir, name=identity["name"],
+                                         group=cfg.logger.group or identity["sweep"]))  # fmt: skip
+            raise bad_input
+        result = _train_and_evaluate(cfg, run_dir, record, loggers, datamodule)
         record["status"] = "ok"
     except Exception as error:  # a sweep job records any failure and lets the other jobs run
         reason = as_divergence(error)
         record["status"], record["error"] = "failed", one_line(reason)
-        log.error(
-            "Job %s failed: %s", identity["name"], record["error"], exc_info=not isinstance(reason, Diverged)
-        )
+        expected = isinstance(reason, GnsxError | RunFailed)  # one line (gnsx.cli), no traceback
+        if identity["multirun"]:
+            log.error("Job %s failed: %s", identity["name"], record["error"], exc_info=not expected)
+        elif not expected:
+            log.error("Job %s failed: %s", identity["name"], record["error"])  # the traceback follows
         if not identity["multirun"]:
+            if reason is not error:
+                raise reason from error
             raise
         result = float("nan")
     finally:
-        if record["status"] == "running":  # KeyboardInterrupt, SystemExit
-            record["status"], record["error"] = "failed", "interrupted"
+        if record["status"] == "running":  # KeyboardInterrupt, SystemExit, SIGTERM
+            record["status"], record["error"] = runstate.INTERRUPTED, "interrupted (stopped by a signal)"
         record["job_wall_s"] = time.perf_counter() - start
         # evaluate_run wrote the test summary (and its per-trajectory rows) into results.json: keep them.
         results = {**_read_results(results_path), **record}
@@ -491,3 +587,16 @@ def run_training(cfg: DictConfig) -> float | None:
         if cfg.logger.wandb:
             _finish_wandb(results)
     return result
+
+
+def _run_dir_of(ckpt_path: str | None) -> Path | None:
+    """The run directory a ``train.ckpt_path`` belongs to (a run dir, or ``<run>/checkpoints/x.ckpt``)."""
+    if ckpt_path is None:
+        return None
+    path = Path(ckpt_path)
+    if path.is_dir():
+        return path
+    for parent in path.parents:
+        if parent.name == "checkpoints":
+            return parent.parent
+    return None

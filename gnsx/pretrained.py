@@ -10,7 +10,6 @@ statistics: what evaluating the weights on new scenes needs besides the weights)
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import shutil
@@ -21,11 +20,14 @@ from pathlib import Path
 import torch
 
 from gnsx.atomic import atomic_path
+from gnsx.checkpoints import read_checkpoint
+from gnsx.cli import ArgumentParser, check_output_path, run_main
+from gnsx.errors import CheckpointError, DataError
 
 
 def strip_checkpoint(src: Path, dst: Path) -> dict:
     """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header."""
-    state = torch.load(src, map_location="cpu", weights_only=False)
+    state = read_checkpoint(src)  # weights_only: no pickled objects
     wanted = ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
     keep = {k: state[k] for k in wanted if k in state}
     with atomic_path(dst) as tmp:
@@ -106,10 +108,13 @@ def export(run_dir: Path, dest: Path, checkpoint: Path | None = None, select_bes
     if select_best_val:
         checkpoint, val_mse = best_validation_checkpoint(run_dir)
         selected = {"by": "lowest validation rollout MSE", "val_rollout_mse": val_mse}
+    if not run_dir.is_dir():
+        raise DataError(str(run_dir), "no such run directory")
     last = run_dir / "checkpoints" / "last.ckpt"
     checkpoint = checkpoint or last
     if not checkpoint.is_file():
-        raise FileNotFoundError(f"{checkpoint}: no checkpoint to export")
+        raise CheckpointError(str(checkpoint), "no checkpoint to export")
+    read_checkpoint(checkpoint)  # a bad file fails here, before anything is written
     # Everything is written into a staging folder beside ``dest`` and swapped in at the end, so a failure
     # (say, in the test evaluation) leaves the weights shipped before untouched.
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -170,7 +175,12 @@ def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selec
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gnsx.pretrained", description=__doc__.splitlines()[0])
+    """The command line; bad input prints one line and returns 2 (:func:`gnsx.cli.run_main`)."""
+    return run_main(_main, argv, user_errors=(FileNotFoundError,))
+
+
+def _main(argv: list[str]) -> int:
+    parser = ArgumentParser(prog="python -m gnsx.pretrained", description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("dest", type=Path)
     choice = parser.add_mutually_exclusive_group()
@@ -181,11 +191,8 @@ def main(argv: list[str] | None = None) -> int:
         help="the saved checkpoint with the lowest validation rollout MSE",
     )
     args = parser.parse_args(argv)
-    try:
-        info = export(args.run_dir, args.dest, args.checkpoint, args.select_best_val)
-    except FileNotFoundError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    check_output_path(args.dest, "DEST")
+    info = export(args.run_dir, args.dest, args.checkpoint, args.select_best_val)
     print(f"exported step {info['global_step']} of {args.run_dir} to {args.dest}")
     return 0
 

@@ -2,6 +2,7 @@
 markdown table and a wandb table.
 
     python -m gnsx.report multirun/fig9_mini/2026-11-26_13-00-00     # writes <that dir>/report/
+    python -m gnsx.report <sweep dir> --budget 3e-2    # + the fastest model with test rollout MSE <= 3e-2
 
 Outputs (in ``<sweep dir>/report/``):
 
@@ -15,6 +16,11 @@ Outputs (in ``<sweep dir>/report/``):
   marked (no other job is both faster and more accurate), models that do not beat the baseline in red.
 * ``radius.png`` (when the radius varies): rollout and one-step error, and ms/frame, against the radius.
 * ``report.md``: the table of every job (failed ones with their reason) and the pictures; ``results.csv``.
+* With ``--budget E`` (``--budget-key``: rollout_mse, onestep_mse or emd): the model a scene needs, the
+  fastest successful job whose mean test error is at most E (:func:`pick_for_budget`), its speed ratio to
+  every other job and whether its error can be told apart from the best job's (paired over the test
+  trajectories with :func:`gnsx.spread.compare` when both have per-trajectory rows, else mean ± 2 SE); it
+  leads ``report.md`` and is framed in blue in the grid and starred in the scatter.
 * ``wandb/``: an offline wandb run (group = the sweep's name) holding the table as a ``wandb.Table`` and the
   pictures (``wandb sync`` uploads it).
 
@@ -82,6 +88,8 @@ from gnsx.spread import (
 
 #: The paper's model (figure 9's green cell): (latent size, message-passing steps).
 PAPER_CELL = (64, 5)
+#: Colour of the budget's pick in the pictures (the paper's cell is limegreen, losers red).
+PICK_COLOUR = "dodgerblue"
 #: Grid axes in the order rows, columns, as in the paper's figure 9.
 AXES = ("latent_size", "mp_steps", "radius")
 AXIS_LABELS = {"latent_size": "embedding size", "mp_steps": "message passing steps", "radius": "radius"}
@@ -210,7 +218,11 @@ def load_job(folder: Path) -> Job:
             results["name"] = ",".join(map(str, yaml.safe_load(overrides.read_text()) or []))
     status = results.get("status", "ok" if "test" in results else "failed")
     error = results.get("error")
-    if status == "running":
+    from gnsx.runstate import INTERRUPTED, effective_status, interrupted_reason
+
+    if effective_status(results) == INTERRUPTED:
+        status, error = INTERRUPTED, interrupted_reason(results)
+    elif status == "running":
         status, error = "failed", "did not finish (killed, out of memory or timed out?)"
     config = _job_config(folder)
     model_cfg = config.get("model", {})
@@ -291,14 +303,15 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     return front
 
 
-def best_job(jobs: Sequence[Job]) -> Job | None:
-    """The successful job with the lowest mean test rollout MSE (None when there is none)."""
-    candidates = [j for j in jobs if j.ok and j.rollout_mse is not None]
-    return min(candidates, key=lambda j: j.rollout_mse) if candidates else None
+def best_job(jobs: Sequence[Job], key: str = "rollout_mse") -> Job | None:
+    """The successful job with the lowest mean test error ``key`` (None when there is none)."""
+    candidates = [j for j in jobs if j.ok and _number(j.spread(key)[0]) is not None]
+    return min(candidates, key=lambda j: j.spread(key)[0]) if candidates else None
 
 
-def versus_best(jobs: Sequence[Job]) -> dict[int, tuple[str, str | None]]:
-    """Whether each successful job can be told apart from the best one (:func:`best_job`) on rollout MSE.
+def versus_best(jobs: Sequence[Job], key: str = "rollout_mse") -> dict[int, tuple[str, str | None]]:
+    """Whether each successful job can be told apart from the best one (:func:`best_job`) on ``key``
+    (default the rollout MSE).
 
     Returns:
         ``{id(job): (verdict, method)}``: verdict ``"best"``, ``"worse"``, ``"better"`` (a paired geometric
@@ -306,23 +319,23 @@ def versus_best(jobs: Sequence[Job]) -> dict[int, tuple[str, str | None]]:
         spread known); method ``"paired"`` (:func:`gnsx.spread.compare` over the test trajectories both
         jobs' rows share, at least 2), ``"2se"`` (the jobs' mean ± 2 SE intervals overlap or not) or None.
     """
-    best = best_job(jobs)
+    best = best_job(jobs, key)
     out: dict[int, tuple[str, str | None]] = {}
     if best is None:
         return out
-    best_mean, best_se = best.spread("rollout_mse")
+    best_mean, best_se = best.spread(key)
     for job in jobs:
-        if not job.ok or job.rollout_mse is None:
+        if not job.ok or _number(job.spread(key)[0]) is None:
             continue
         if job is best:
             out[id(job)] = ("best", None)
             continue
-        paired = compare(best.rows, job.rows) if best.rows and job.rows else None
+        paired = compare(best.rows, job.rows, key) if best.rows and job.rows else None
         if paired is not None and paired["trajectories"] >= 2:
             verdict = {"A better": "worse", "B better": "better"}.get(paired["verdict"], TIED)
             out[id(job)] = (verdict, "paired")
             continue
-        mean, se = job.spread("rollout_mse")
+        mean, se = job.spread(key)
         if se is None or best_se is None:
             out[id(job)] = ("unknown", None)
         elif abs(mean - best_mean) > 2 * (se + best_se):
@@ -330,6 +343,123 @@ def versus_best(jobs: Sequence[Job]) -> dict[int, tuple[str, str | None]]:
         else:
             out[id(job)] = (TIED, "2se")
     return out
+
+
+# -- the model a scene needs: fastest within an error budget -------------------------------------------------
+#: Test errors a budget can bound (lower is better; data units^2 for the MSEs, data units for EMD).
+BUDGET_KEYS = ("rollout_mse", "onestep_mse", "emd")
+_BUDGET_NAMES = {"rollout_mse": "rollout MSE", "onestep_mse": "one-step MSE", "emd": "EMD"}
+
+
+@dataclass
+class BudgetPick:
+    """What :func:`pick_for_budget` found: the fastest successful job whose mean held-out error ``key`` is at
+    most ``budget``.
+
+    Attributes:
+        pick: that job, or None when no job with a known speed stays within the budget.
+        best: the job with the lowest mean error (:func:`best_job`).
+        versus_best: ``(verdict, method)`` of the pick against the best (:func:`versus_best`): ``"best"``,
+            ``"worse"``, ``"cannot be told apart"``, ... and ``"paired"`` / ``"2se"`` / None.
+        paired: :func:`gnsx.spread.compare` of best and pick (``ratio`` = pick's error over the best's) when
+            both have per-trajectory rows, else None.
+        others: per other successful job with a known speed and error: ``(job, speed ratio = its ms/frame over
+            the pick's, its mean error, within the budget)``, fastest first.
+    """
+
+    key: str
+    budget: float
+    source: str
+    pick: Job | None
+    best: Job | None
+    versus_best: tuple[str, str | None] | None = None
+    paired: dict | None = None
+    others: list[tuple[Job, float | None, float, bool]] = field(default_factory=list)
+
+
+def pick_for_budget(jobs: Sequence[Job], budget: float, key: str = "rollout_mse") -> BudgetPick:
+    """The model a scene needs: among the successful jobs with a known speed (:func:`speed_source`), the
+    fastest whose mean test ``key`` is at most ``budget``, with how much faster it is than each other job and
+    whether its error can be told apart from the best job's."""
+    if key not in BUDGET_KEYS:
+        raise ValueError(f"pick_for_budget: key must be one of {BUDGET_KEYS}, got {key!r}")
+    source = speed_source(jobs)
+    timed = [
+        j
+        for j in jobs
+        if j.ok and j.ms_per_frame(source) is not None and _number(j.spread(key)[0]) is not None
+    ]
+    timed.sort(key=lambda j: j.ms_per_frame(source))
+    within = [j for j in timed if j.spread(key)[0] <= budget]
+    pick = within[0] if within else None
+    best = best_job(jobs, key)
+    result = BudgetPick(key=key, budget=float(budget), source=source, pick=pick, best=best)
+    if pick is None:
+        return result
+    result.versus_best = versus_best(jobs, key).get(id(pick))
+    if best is not None and best is not pick and best.rows and pick.rows:
+        result.paired = compare(best.rows, pick.rows, key)
+    ms = pick.ms_per_frame(source)
+    result.others = [
+        (j, j.ms_per_frame(source) / ms if ms > 0 else None, j.spread(key)[0], j.spread(key)[0] <= budget)
+        for j in timed
+        if j is not pick
+    ]
+    return result
+
+
+def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
+    """Markdown lines saying which model the budget picks and by how much it beats the others."""
+    what = _BUDGET_NAMES[result.key]
+    speed = "benchmark at WaterRamps size" if result.source == "bench" else "test rollouts"
+    lines = [f"Budget: test {what} at most {result.budget:.3g} (mean over the test trajectories); speed from"
+             f" the {speed}."]  # fmt: skip
+    pick = result.pick
+    if pick is None:
+        closest = result.best
+        lines.append(
+            "**No model stays within the budget.**"
+            + (
+                f" The lowest {what} is {closest.label(keys)}'s, {_with_se(*closest.spread(result.key))}."
+                if closest
+                else ""
+            )
+        )
+        return lines
+    ms = pick.ms_per_frame(result.source)
+    lines.append(
+        f"**Pick: {pick.label(keys)}**: {ms:.3g} ms/frame, {what} {_with_se(*pick.spread(result.key))}, the"
+        " fastest model within the budget."
+    )
+    verdict, method = result.versus_best or (None, None)
+    best = result.best
+    if verdict == "best":
+        lines.append(f"It is also the most accurate model (lowest mean {what}).")
+    elif best is not None:
+        how = {
+            "paired": "paired over the same test trajectories",
+            "2se": "by the overlap of mean ± 2 SE",
+        }.get(method, "")
+        told = {TIED: "cannot be told apart from", "worse": "is worse than", "better": "is better than"}.get(
+            verdict, "cannot be compared with (no spread recorded)"
+        )
+        line = (
+            f"Its {what} {told} the best model's ({best.label(keys)}, {_with_se(*best.spread(result.key))})"
+        )
+        if result.paired is not None and math.isfinite(result.paired["ratio"]):
+            paired = result.paired
+            interval = f" [{paired['lo']:.2f}, {paired['hi']:.2f}]" if math.isfinite(paired["lo"]) else ""
+            line += (f": pick / best {paired['ratio']:.2f}x{interval}, geometric mean over"
+                     f" {paired['trajectories']} trajectories")  # fmt: skip
+        lines.append(line + (f", {how}." if how else "."))
+    faster = [f"{ratio:.2f}x faster than {job.label(keys)}" + ("" if within else " (over budget)")
+              for job, ratio, _, within in result.others if ratio is not None and ratio >= 1]  # fmt: skip
+    if faster:
+        lines.append("Speed: " + "; ".join(faster) + ".")
+    over = [job.label(keys) for job, ratio, _, within in result.others if ratio is not None and ratio < 1]
+    if over:
+        lines.append(f"Faster but over the budget: {', '.join(over)}.")
+    return lines
 
 
 def _with_se(mean: float | None, se: float | None, fmt: str = ".2e") -> str:
@@ -382,8 +512,10 @@ def grid_layout(jobs: Sequence[Job]) -> tuple[str | None, list, str, list]:
     return row_key, row_values, col_key, col_values
 
 
-def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL) -> Path:
-    """Figure 9: one rendered test frame per job on a grid of the swept axes (first two of :data:`AXES`)."""
+def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL,
+              pick: Job | None = None) -> Path:  # fmt: skip
+    """Figure 9: one rendered test frame per job on a grid of the swept axes (first two of :data:`AXES`);
+    ``pick`` (:func:`pick_for_budget`) framed in blue and tagged "budget pick"."""
     import imageio.v3 as iio
     import matplotlib.pyplot as plt
 
@@ -432,9 +564,15 @@ def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None
                 and (job.latent_size, job.mp_steps) == tuple(highlight)
                 and {row_key, col_key} <= {"latent_size", "mp_steps", None}
             )
+            picked = pick is not None and job is pick
             for spine in ax.spines.values():
-                spine.set_edgecolor("limegreen" if is_paper else "0.6")
-                spine.set_linewidth(4 if is_paper else 0.8)
+                # The paper's cell keeps its green frame when it is also the pick; the tag says so.
+                spine.set_edgecolor("limegreen" if is_paper else PICK_COLOUR if picked else "0.6")
+                spine.set_linewidth(4 if is_paper or picked else 0.8)
+            if picked:
+                ax.text(0.5, 0.98, "budget pick", ha="center", va="top", fontsize=9, fontweight="bold",
+                        color=PICK_COLOUR, transform=ax.transAxes,
+                        bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8})  # fmt: skip
         if truth:
             ax = grid[r, -1]
             ax.set_xticks([])
@@ -469,9 +607,11 @@ def _axis_value(key: str, value) -> str:
     return f"{'MP' if key == 'mp_steps' else 'latent'} {value}"
 
 
-def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL) -> Path:
+def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL,
+                     budget: BudgetPick | None = None) -> Path:  # fmt: skip
     """ms/frame against test rollout MSE (±1 SE error bars), log-log, every successful job labelled, the
-    Pareto front joined, jobs that do not beat the physics-free baseline in red."""
+    Pareto front joined, jobs that do not beat the physics-free baseline in red; with a ``budget``, its pick
+    starred in blue (and the budget drawn when it bounds the rollout MSE)."""
     import matplotlib.pyplot as plt
 
     source = speed_source(jobs)
@@ -499,6 +639,11 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
             if highlight is not None and (job.latent_size, job.mp_steps) == tuple(highlight):
                 ax.scatter([x], [y], s=220, facecolors="none", edgecolors="limegreen", linewidths=2, zorder=4,
                            label=f"paper's {highlight[0]}/{highlight[1]}")  # fmt: skip
+        if budget is not None and budget.pick in shown:
+            x, y = points[shown.index(budget.pick)]
+            ax.scatter([x], [y], marker="*", s=320, color=PICK_COLOUR, zorder=5, label="budget pick")
+        if budget is not None and budget.key == "rollout_mse":
+            ax.axhline(budget.budget, ls="--", lw=1, color=PICK_COLOUR, label=f"budget {budget.budget:.3g}")
         front = pareto_front(points)
         # A staircase: between two front points, the best error reachable at that speed is the slower one's.
         ax.plot(xs[front], ys[front], "-o", drawstyle="steps-post", color="tab:red", mfc="none", ms=11,
@@ -669,8 +814,9 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str, Path], sweep_dir: Path,
-                   path: Path) -> Path:  # fmt: skip
-    """``report.md``: counts, pictures, the table, the Pareto front and the failed jobs with their reasons."""
+                   path: Path, budget: BudgetPick | None = None) -> Path:  # fmt: skip
+    """``report.md``: counts, the budget's pick (when given), pictures, the table, the Pareto front and the
+    failed jobs with their reasons."""
     source = speed_source(jobs)
     keys = swept_axes(jobs)
     ok = [j for j in jobs if j.ok]
@@ -688,6 +834,8 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
         " model does not beat the baseline; an interval containing 1: the two cannot be told apart).",
         "",
     ]
+    if budget is not None:  # first: the answer to the question the budget asks
+        lines += ["## The model for the budget", "", *budget_lines(budget, keys), ""]
     for title, picture in pictures.items():
         lines += [f"![{title}]({picture.name})", ""]
     lines += [markdown_table(rows), ""]
@@ -781,22 +929,29 @@ def build_report(
     highlight: tuple[int, int] | None = PAPER_CELL,
     wandb_mode: str = "offline",
     project: str | None = None,
+    budget: float | None = None,
+    budget_key: str = "rollout_mse",
 ) -> dict[str, Path]:
-    """Everything of the module docstring for one multirun directory. Returns ``{what: path}``."""
+    """Everything of the module docstring for one multirun directory. Returns ``{what: path}``.
+
+    With ``budget`` (an upper bound on the mean test ``budget_key``), :func:`pick_for_budget`'s pick leads
+    ``report.md`` and is marked in the grid (blue frame, "budget pick") and the scatter (blue star).
+    """
     sweep_dir = Path(sweep_dir)
     jobs = load_sweep(sweep_dir)
+    pick = pick_for_budget(jobs, budget, budget_key) if budget is not None else None
     out = Path(out_dir) if out_dir is not None else sweep_dir / "report"
     out.mkdir(parents=True, exist_ok=True)
     keys = swept_axes(jobs)
     pictures: dict[str, Path] = {}
     if any(j.frame_png for j in jobs) or {"latent_size", "mp_steps"} & set(keys):
-        pictures["grid"] = plot_grid(jobs, out / "grid.png", highlight)
-    pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight)
+        pictures["grid"] = plot_grid(jobs, out / "grid.png", highlight, pick.pick if pick else None)
+    pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight, pick)
     if "radius" in keys:
         pictures["radius"] = plot_radius(jobs, out / "radius.png")
     rows = table_rows(jobs)
     outputs = dict(pictures)
-    outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md")
+    outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md", pick)
     outputs["csv"] = write_csv(rows, out / "results.csv")
     if project is None:
         project = _job_config(jobs[0].folder).get("logger", {}).get("project", "gnsx")
@@ -829,8 +984,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the report's wandb run (default offline: `wandb sync` uploads it later)",
     )
     parser.add_argument("--project", default=None, help="wandb project (default: the jobs' logger.project)")
+    parser.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="error budget: pick the fastest model whose mean test error (--budget-key) is at most this",
+    )
+    parser.add_argument("--budget-key", default="rollout_mse", choices=BUDGET_KEYS)
     args = parser.parse_args(argv)
-    outputs = build_report(args.sweep_dir, args.out, _parse_cell(args.highlight), args.wandb, args.project)
+    outputs = build_report(args.sweep_dir, args.out, _parse_cell(args.highlight), args.wandb, args.project,
+                           args.budget, args.budget_key)  # fmt: skip
     print(Path(outputs["markdown"]).read_text())
     for what, path in outputs.items():
         print(f"{what}: {path}")
@@ -838,4 +1001,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from gnsx.cli import run_main
+
+    raise SystemExit(run_main(main, user_errors=(FileNotFoundError,)))

@@ -34,6 +34,7 @@ import yaml
 
 from gnsx.data.metadata import Metadata
 from gnsx.errors import DataError
+from gnsx.health import rollout_health, warn_if_unhealthy
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.generate import check_scene, initial_state
@@ -122,6 +123,7 @@ def rollout_scene(
     seed: int = 0,
     ground_truth: bool = False,
     progress: bool = False,
+    constrain: bool = True,
 ) -> SceneRollout:
     """Roll the model out on a scene for ``num_frames`` frames (inputs included).
 
@@ -133,6 +135,8 @@ def rollout_scene(
         num_frames: frames in all (default ``preset.num_frames``).
         seed: water particle placement seed (the same particles as the MPM run with this seed).
         ground_truth: also simulate the scene with the MPM solver and start the model from its first frames.
+        constrain: hold the rollout by the scene's walls and ramps (:class:`gnsx.model.boundary.Boundary`);
+            ``False``: the raw model.
     """
     check_scene(scene, preset)
     num_frames = preset.num_frames if num_frames is None else int(num_frames)
@@ -154,7 +158,8 @@ def rollout_scene(
     device = simulator.acc_std.device
     window = torch.from_numpy(np.ascontiguousarray(initial)).to(device).transpose(0, 1)  # [N, H+1, 2]
     types = torch.from_numpy(particle_type).to(device)
-    predicted = rollout(simulator, window, types, num_frames - frames, progress=progress).cpu().numpy()
+    steps = num_frames - frames
+    predicted = rollout(simulator, window, types, steps, progress=progress, constrain=constrain).cpu().numpy()
     return SceneRollout(
         predicted=np.concatenate([initial, predicted]).astype(np.float32),
         particle_type=particle_type,
@@ -190,8 +195,9 @@ def simulate_to_folder(
     (:func:`gnsx.scoring.rollout_errors`: position MSE, EMD, kinetic-energy error, neighbour ratio, ...).
 
     Returns:
-        ``{"out_dir", "particles", "frames", "history_source", "files": {...}, "errors": {...} (with ground
-        truth)}``.
+        ``{"out_dir", "particles", "frames", "history_source", "health": {...}, "blew_up", "files": {...},
+        "errors": {...} (with ground truth)}``; ``health`` is :func:`gnsx.health.rollout_health` (a warning
+        line goes to stderr when the rollout blew up).
     """
     import json
 
@@ -204,6 +210,8 @@ def simulate_to_folder(
     result = rollout_scene(simulator, scene, preset, num_frames, seed, ground_truth, progress=True)
     num_frames = result.predicted.shape[0]
     metadata = scene_metadata(simulator, preset, num_frames)
+    health = rollout_health(result.predicted, result.particle_type, metadata, first_frame=result.input_frames)
+    warn_if_unhealthy(health, "the rollout")
     info = {"model": label, "scene": scene.to_dict(), "seed": seed, "history_source": result.history_source}
     item = Rollout(
         predicted=result.predicted,
@@ -232,6 +240,8 @@ def simulate_to_folder(
         "particles": int(result.predicted.shape[1]),
         "frames": int(num_frames),
         "history_source": result.history_source,
+        "health": health,
+        "blew_up": health["blew_up"],
     }
     if result.ground_truth is not None:
         both = render_rollouts(panels, result.particle_type, bounds, titles, frame_stride=frame_stride)

@@ -25,6 +25,11 @@ row key                     meaning (positions in data units, metres for WaterRa
                             the rollout compressed the fluid (volume loss), below 1 it spread it
 ``out_of_bounds_fraction``  dynamic particles outside the walls, fraction, mean over predicted frames;
                             ``out_of_bounds_final``: their number at the last frame
+``nonfinite``               :func:`gnsx.health.rollout_health` of the prediction: NaN/Inf coordinates; the
+``max_speed``               fastest dynamic particle (m/s); steps through a ramp; the most particles outside
+``ramp_crossings``          the box at any frame; whether it blew up (NaN, or faster than the blow-up speed).
+``out_of_bounds_max``       A rollout held by its boundary (the default) has no crossing and nobody outside
+``blew_up``
 ``ms_per_frame``            :func:`gnsx.benchmark.measure_inference` on the trajectory's first frames (median
                             after warm-up, graph build included); ``peak_memory_mb`` likewise
 ``rollout_ms_per_frame``    wall time of the whole rollout per frame (graph build included)
@@ -45,6 +50,8 @@ summary key                      meaning
                                  cannot be told apart
 ``baseline_ratio_wins``          trajectories on which the model's ``rollout_mse`` is below the baseline's
 ``ms_per_frame``                 median over trajectories; ``peak_memory_mb``: the max; ``trajectories``: n
+``blow_ups``                     trajectories whose rollout blew up (``blew_up``); ``max_speed_max``: the
+                                 fastest particle of all, m/s
 ===============================  =============================================================================
 
 :func:`evaluate_simulator` runs every trajectory and summarises; :func:`format_table` prints the result.
@@ -69,6 +76,7 @@ import torch
 from gnsx.benchmark import measure_inference
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
+from gnsx.health import describe, rollout_health
 from gnsx.metrics import (
     earth_movers_distance,
     kinetic_energy,
@@ -112,6 +120,8 @@ _MEAN_KEYS = (
     "neighbour_ratio",
     "out_of_bounds_fraction",
     "out_of_bounds_final",
+    "ramp_crossings",
+    "max_speed",
     "rollout_ms_per_frame",
 )
 
@@ -287,6 +297,7 @@ def score_trajectory(
     onestep_stride: int = 10,
     timing_warmup: int = 3,
     timing_repeats: int = 20,
+    constrain: bool = True,
 ) -> TrajectoryResult:
     """Roll out one trajectory from its first ``history + 1`` frames and compute every metric.
 
@@ -301,6 +312,8 @@ def score_trajectory(
         onestep_stride: one-step MSE on every ``onestep_stride``-th frame.
         timing_warmup, timing_repeats: :func:`gnsx.benchmark.measure_inference` on the initial frames;
             ``timing_repeats=0`` skips it (``ms_per_frame`` and ``peak_memory_mb`` are then NaN/None).
+        constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`);
+            ``False`` scores the raw model. The baseline is always held.
     """
     device = simulator.acc_std.device
     position = position.to(device=device, dtype=torch.float32)
@@ -320,7 +333,9 @@ def score_trajectory(
         timing = measure_inference(simulator, initial, particle_type, timing_warmup, timing_repeats)
     start = time.perf_counter()
     predicted = (
-        torch.cat([position[:frames], rollout(simulator, initial, particle_type, steps)]).cpu().numpy()
+        torch.cat([position[:frames], rollout(simulator, initial, particle_type, steps, constrain=constrain)])
+        .cpu()
+        .numpy()
     )
     rollout_seconds = time.perf_counter() - start
     baseline = physics_free_baseline(
@@ -340,6 +355,7 @@ def score_trajectory(
             baseline[t, dynamic], true[t, dynamic], method=emd_method
         )
     baseline_mse = position_mse(baseline[frames:], true[frames:], dynamic)
+    health = rollout_health(predicted, types, metadata, first_frame=frames)
     row = {
         "trajectory": int(index),
         "particles": int(position.shape[1]),
@@ -353,7 +369,10 @@ def score_trajectory(
         "ms_per_frame": float(timing["ms_per_frame"]),
         "peak_memory_mb": timing["peak_memory_mb"],
         "rollout_ms_per_frame": 1000 * rollout_seconds / steps,
+        **{k: v for k, v in health.items() if k not in ("speed_limit", "out_of_bounds_final")},
     }
+    if health["blew_up"]:
+        print(f"warning: trajectory {index} blew up: {describe(health)}", file=sys.stderr)
     return TrajectoryResult(index, row, per_frame, true, predicted, baseline, types, frames)
 
 
@@ -373,6 +392,9 @@ def summarise(rows: Sequence[dict]) -> dict:
     memory = [r["peak_memory_mb"] for r in rows if r.get("peak_memory_mb") is not None]
     summary["peak_memory_mb"] = float(max(memory)) if memory else None
     summary["trajectories"] = len(rows)
+    if rows and "blew_up" in rows[0]:
+        summary["blow_ups"] = sum(bool(r.get("blew_up")) for r in rows)
+        summary["max_speed_max"] = max(float(r.get("max_speed", float("nan"))) for r in rows)
     if "baseline_mse" in summary:
         summary["baseline_ratio"] = summary["baseline_mse"] / max(summary["rollout_mse"], 1e-30)
         ratios = [r.get("baseline_ratio", _ratio(r.get("baseline_mse"), r.get("rollout_mse"))) for r in rows]
@@ -403,6 +425,7 @@ def evaluate_simulator(
     onestep_stride: int = 10,
     timing_warmup: int = 3,
     timing_repeats: int = 20,
+    constrain: bool = True,
     on_trajectory: Callable[[TrajectoryResult], None] | None = None,
 ) -> tuple[dict, list[dict], dict | None]:
     """Roll out and score every trajectory (see :func:`score_trajectory` for the arguments).
@@ -438,6 +461,7 @@ def evaluate_simulator(
             onestep_stride=onestep_stride,
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
+            constrain=constrain,
         )
         rows.append(result.row)
         if keep_first and first is None:
@@ -493,6 +517,12 @@ def format_table(rows: list[dict], summary: dict, title: str, colour: bool | Non
     lines.append(line("mean", "", means))
     lines.append(line("± se", "", summary, keys=lambda k: f"{k}_se"))
     lines.extend(baseline_lines(summary, colour))
+    if summary.get("blow_ups"):
+        message = (
+            f"{summary['blow_ups']}/{summary['trajectories']} ROLLOUTS BLEW UP (NaN, or a particle at "
+            f"{summary['max_speed_max']:.3g} m/s): see the rows' blew_up, max_speed and nonfinite"
+        )
+        lines.append(alarm(message, colour))
     return "\n".join(lines)
 
 

@@ -16,6 +16,7 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.metrics import position_mse
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.numerics import SkippedSteps, drop_gradients, finite_gradients
 from gnsx.schedule import learning_rate, noise_std
 from gnsx.scoring import onestep_mse
 
@@ -63,6 +64,9 @@ class GNSSystem(L.LightningModule):
             ``"huber"`` (squared below ``huber_delta``, linear above, on the error vector's length; see
             :func:`acceleration_loss`).
         huber_delta: where the Huber loss turns linear, in normalised-acceleration units.
+        max_skipped_steps: training stops (:class:`~gnsx.numerics.Diverged`) after more than this many
+            optimizer steps in a row were skipped for a NaN/Inf loss or gradient (0: never); a skipped step
+            leaves every weight untouched (:mod:`gnsx.numerics`).
     """
 
     def __init__(
@@ -85,6 +89,7 @@ class GNSSystem(L.LightningModule):
         onestep_stride: int = 10,
         loss: str = "mse",
         huber_delta: float = 1.0,
+        max_skipped_steps: int = 20,
     ):
         super().__init__()
         if loss not in LOSSES:
@@ -92,6 +97,8 @@ class GNSSystem(L.LightningModule):
         if not huber_delta > 0:
             raise ValueError(f"GNSSystem: huber_delta must be > 0, got {huber_delta}")
         self.save_hyperparameters()
+        self.skipped = SkippedSteps(max_skipped_steps)
+        self._skipping = False  # the current step was skipped
         self.simulator = LearnedSimulator(
             dim=dim,
             bounds=bounds,
@@ -142,6 +149,7 @@ class GNSSystem(L.LightningModule):
 
     # -- training --------------------------------------------------------------------------------------------
     def training_step(self, batch, batch_idx: int) -> torch.Tensor:
+        self._skipping = False
         std = self.current_noise_std()
         predicted, target = self.simulator.noisy_training_pair(
             batch.position_sequence, batch.next_position, batch.particle_type, std, batch=batch.batch
@@ -152,10 +160,41 @@ class GNSSystem(L.LightningModule):
         h = self.hparams
         loss = acceleration_loss(predicted[dynamic], target[dynamic], h.loss, h.huber_delta)
         size = int(batch.num_graphs)
+        bad = not bool(torch.isfinite(loss.detach()))
+        # Every rank skips together (gnsx.numerics); a single process decides alone.
+        if bool(self.trainer.strategy.reduce_boolean_decision(bad, all=False)):
+            self._skip(f"loss is {float(loss.detach()):g}")
+            # A zero loss on the parameters alone: backward (and DDP's all-reduce) run on finite zeros, and
+            # on_before_optimizer_step drops them, so the optimizer changes nothing.
+            return sum((p * 0).sum() for p in self.parameters() if p.requires_grad)
         self.log("train/loss", loss, prog_bar=True, batch_size=size)
         self.log("train/noise_std", std, batch_size=size)
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
         return loss
+
+    def _skip(self, reason: str) -> None:
+        self._skipping = True
+        self.skipped.skip(self.global_step, reason)
+        self.log("train/skipped_steps", float(self.skipped.total), batch_size=1)
+
+    def on_before_optimizer_step(self, optimizer) -> None:
+        """Drop the gradients of a skipped step, or non-finite ones (before clipping and the optimizer): the
+        optimizer then changes no weight and no moment."""
+        if self._skipping:
+            drop_gradients(self.parameters())
+        elif not finite_gradients(self.parameters()):
+            drop_gradients(self.parameters())
+            self._skip("a gradient is NaN or Inf")
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        if not self._skipping:
+            self.skipped.ok()
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["gnsx_skipped_steps"] = int(self.skipped.total)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.skipped.total = int(checkpoint.get("gnsx_skipped_steps", 0))
 
     # -- validation: full rollouts ---------------------------------------------------------------------
     def validation_step(self, trajectory: dict, batch_idx: int) -> None:

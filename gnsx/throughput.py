@@ -17,7 +17,6 @@ code the same way::
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -31,7 +30,9 @@ import torch
 from lightning.pytorch.callbacks import Callback
 
 from gnsx.benchmark import MODELS
+from gnsx.cli import ArgumentParser, check_int, check_output_path, run_main
 from gnsx.datamodule import ParticleDataModule
+from gnsx.errors import ConfigError
 from gnsx.system import GNSSystem
 
 
@@ -130,7 +131,12 @@ def measure_training(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    """The command line; bad input prints one line and returns 2 (:func:`gnsx.cli.run_main`)."""
+    return run_main(_main, argv)
+
+
+def _main(argv: list[str]) -> int:
+    parser = ArgumentParser(
         prog="python -m gnsx.throughput",
         description="Training samples/s and steps/s of the Lightning training loop on a gnsx dataset.",
     )
@@ -147,9 +153,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = parser.parse_args(argv)
     if not (Path(args.data) / "metadata.json").is_file():
-        parser.error(
-            f"--data {args.data}: no gnsx dataset here (metadata.json missing); `make data` makes one"
+        raise ConfigError(
+            f"--data {args.data}", "no gnsx dataset here (metadata.json missing); `make data` makes one"
         )
+    threads = [] if args.threads is None else [args.threads]
+    flags = {
+        "--batch-size": (args.batch_size, 1),
+        "--steps": ([args.steps], 1),
+        "--warmup": ([args.warmup], 0),
+        "--devices": ([args.devices], 1),
+        "--threads": (threads, 1),
+    }
+    for flag, (values, minimum) in flags.items():
+        for value in values:
+            check_int(value, flag, minimum=minimum)
+    if args.json:
+        check_output_path(args.json, "--json")
     if args.threads:
         torch.set_num_threads(args.threads)
     results = []

@@ -268,7 +268,8 @@ def test_detect_format_errors(tmp_path):
 
 def test_convert_tfrecord_keeps_source_metadata_and_round_trips(tmp_path):
     train, test = random_trajectories(4, seed=8), random_trajectories(2, seed=9, key0=0)
-    source_meta = {**GEOMETRY, "sequence_length": 7, **STATS, "context_mean": [0.25]}
+    shortest = min(t.num_frames for t in train + test)  # sequence_length must agree with the data
+    source_meta = {**GEOMETRY, "sequence_length": shortest - 1, **STATS, "context_mean": [0.25]}
     src = make_source(tmp_path / "src", "tfrecord", {"train": train, "test": test}, source_meta)
     meta = convert(src, tmp_path / "dst")
     assert meta.to_dict() == source_meta  # kept verbatim, statistics not recomputed

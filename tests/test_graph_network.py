@@ -160,3 +160,23 @@ def test_fast_network_matches_reference_with_shipped_weights():
         fast = simulator.network(node_features, edge_index, edge_attr)
         reference = reference_forward(simulator.network, node_features, edge_index, edge_attr)
     assert torch.allclose(fast, reference, rtol=1e-4, atol=1e-4 * float(reference.abs().max()))
+
+
+@pytest.mark.parametrize("name", ["simplified", "original"])
+def test_culled_network_matches_reference_on_decoded_rows(name):
+    """Exact culling (decode=mask) is an option of the fast path: its decoded rows are the reference's."""
+    from reference_gns import reference_forward
+
+    from gnsx.benchmark import build_model
+    from gnsx.model.culling import plan_culling
+
+    torch.manual_seed(0)
+    simulator = build_model(name)
+    node_features, edge_index, edge_attr = _waterramps_like_graph(simulator)
+    decode = torch.rand(len(node_features), generator=torch.Generator().manual_seed(4)) < 0.05
+    with torch.no_grad():
+        culled = simulator.network(node_features, edge_index, edge_attr, decode=decode)
+        reference = reference_forward(simulator.network, node_features, edge_index, edge_attr)
+    assert torch.allclose(culled[decode], reference[decode], rtol=1e-4, atol=1e-4)
+    assert (culled[~decode] == 0).all()
+    assert plan_culling(edge_index, decode, simulator.config["mp_steps"]).work()["edge_updates"] < 0.9

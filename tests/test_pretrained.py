@@ -104,8 +104,9 @@ def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
     (run / "checkpoints" / "permanent").mkdir(parents=True)
     (run / ".hydra").mkdir()
     (run / ".hydra" / "config.yaml").write_text("model: {}\n")  # no data.root: the test evaluation cannot run
-    torch.save({"state_dict": {}, "global_step": 5}, run / "checkpoints" / "last.ckpt")
-    torch.save({"state_dict": {}, "global_step": 4}, run / "checkpoints" / "permanent" / "step00000004.ckpt")
+    header = {"state_dict": {}, "hyper_parameters": {"model": {}}}  # what read_checkpoint requires
+    torch.save({**header, "global_step": 5}, run / "checkpoints" / "last.ckpt")
+    torch.save({**header, "global_step": 4}, run / "checkpoints" / "permanent" / "step00000004.ckpt")
     dest = tmp_path / "shipped"
     dest.mkdir()
     (dest / "model.ckpt").write_bytes(b"previous weights")

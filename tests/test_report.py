@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gnsx.report import (
+    budget_lines,
     build_report,
     grid_layout,
     load_job,
@@ -18,6 +19,7 @@ from gnsx.report import (
     main,
     markdown_table,
     pareto_front,
+    pick_for_budget,
     speed_source,
     swept_axes,
     table_rows,
@@ -294,3 +296,61 @@ def test_old_results_without_spreads_load(tmp_path):
     mean, se = job.spread("rollout_mse")
     assert (mean, se) == (pytest.approx(0.02), pytest.approx(0.01))
     assert job.baseline_ratio()[0] == pytest.approx(2.0) and job.baseline_ratio()[1] == pytest.approx(2.0)
+
+
+# ------------------------------------------------------------------------------------------------ budget
+
+
+def _blue_pixels(path: Path) -> int:
+    """Pixels of the budget pick's colour (matplotlib's dodgerblue)."""
+    image = iio.imread(path)[..., :3].astype(int)
+    return int((np.abs(image - np.array([30, 144, 255])).sum(axis=-1) < 30).sum())
+
+
+def test_budget_picks_the_fastest_model_within_it(spread_sweep):
+    jobs = load_sweep(spread_sweep)
+    label = {id(j): j.label(["latent_size", "mp_steps"]) for j in jobs}
+    # 64/5 is the best (1.9e-2) at 20 ms; 64/1 (2.0e-2) is within 2.5e-2 at 8 ms; the faster three are not.
+    result = pick_for_budget(jobs, 2.5e-2)
+    assert label[id(result.pick)] == "64/1" and label[id(result.best)] == "64/5"
+    assert result.versus_best == ("cannot be told apart", "paired")
+    assert result.paired["trajectories"] == 4 and result.paired["lo"] < 1 < result.paired["hi"]
+    ratios = {label[id(job)]: (ratio, within) for job, ratio, _, within in result.others}
+    assert ratios["64/5"] == (pytest.approx(20.0 / 8.0), True)
+    assert ratios["16/1"] == (pytest.approx(2.0 / 8.0), False)
+    lines = "\n".join(budget_lines(result, ["latent_size", "mp_steps"]))
+    assert "**Pick: 64/1**: 8 ms/frame" in lines
+    assert "cannot be told apart from the best model's (64/5" in lines and "over 4 trajectories" in lines
+    assert "2.50x faster than 64/5." in lines
+    assert "Faster but over the budget: 16/1, 16/5, 32/5." in lines
+    # A looser budget admits 32/5, whose old results have no spread to compare with the best.
+    looser = pick_for_budget(jobs, 3.5e-2)
+    assert label[id(looser.pick)] == "32/5" and looser.versus_best == ("unknown", None)
+    assert "cannot be compared with (no spread recorded)" in "\n".join(budget_lines(looser, []))
+    # Any error: the fastest, worse than the best on paired trajectories.
+    anything = pick_for_budget(jobs, 1.0)
+    assert label[id(anything.pick)] == "16/1" and anything.versus_best == ("worse", "paired")
+    assert "10.00x faster than 64/5" in "\n".join(budget_lines(anything, ["latent_size", "mp_steps"]))
+    # Too tight: nothing within, and the report says which model comes closest.
+    none = pick_for_budget(jobs, 1e-3)
+    assert none.pick is None and none.others == []
+    assert "**No model stays within the budget.** The lowest rollout MSE is 64/5's" in "\n".join(
+        budget_lines(none, ["latent_size", "mp_steps"])
+    )
+    with pytest.raises(ValueError, match="key"):
+        pick_for_budget(jobs, 1.0, key="ms_per_frame")
+
+
+def test_budget_pick_leads_the_report_and_is_marked(spread_sweep, capsys):
+    assert main([str(spread_sweep), "--wandb", "disabled", "--budget", "2.5e-2"]) == 0
+    printed = capsys.readouterr().out
+    assert "## The model for the budget" in printed and "**Pick: 64/1**" in printed
+    # Before the pictures and the table: the answer first.
+    assert printed.index("**Pick: 64/1**") < printed.index("![grid](grid.png)")
+    report = spread_sweep / "report"
+    marked = _blue_pixels(report / "grid.png"), _blue_pixels(report / "speed_vs_error.png")
+    assert marked[0] > 200 and marked[1] > 100
+    # Without a budget: no section, nothing blue.
+    plain = build_report(spread_sweep, wandb_mode="disabled")
+    assert "The model for the budget" not in plain["markdown"].read_text()
+    assert _blue_pixels(plain["grid"]) == 0 and _blue_pixels(plain["speed_vs_error"]) == 0

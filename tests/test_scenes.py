@@ -59,7 +59,11 @@ def test_scene_from_dict_defaults_velocity_and_accepts_no_ramps():
         ({"ramps": [[[0.2, 0.2], [0.2, 0.2]]]}, r"scene\.ramps\[0\]: .*zero-length"),
         ({"ramps": [[[0.2, 0.2]]]}, r"scene\.ramps\[0\]"),
         ({"ramps": [[[0.2, 0.2], [0.3, math.nan]]]}, r"scene\.ramps\[0\]\[1\]"),
-        ({"block": []}, r"scene: unknown key"),
+        ({"block": []}, r"scene: unknown key\(s\) \['block'\] \(did you mean 'blocks'\?\)"),
+        (
+            {"blocks": [{"lower": [0.2, 0.2], "upper": [0.4, 0.3], "speed": [1, 0]}]},
+            r"scene\.blocks\[0\]: unknown key\(s\) \['speed'\]; expected 'lower', 'upper', 'velocity'",
+        ),
     ],
 )
 def test_scene_from_dict_names_the_bad_field(bad, where):

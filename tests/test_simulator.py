@@ -7,6 +7,7 @@ import torch
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import LearnedSimulator, physics_free_baseline, random_walk_noise, rollout
+from gnsx.model.boundary import Boundary
 from gnsx.model.features import edge_features, type_scalar_feature, wall_features
 
 # WaterRamps metadata (DESIGN.md section 3).
@@ -205,18 +206,23 @@ def test_rollout_feeds_back_and_holds_static_particles():
     simulator = make_simulator(ORIGINAL)
     positions, types = scene()
     static = types == KINEMATIC_PARTICLE_ID
-    predicted = rollout(simulator, positions, types, num_steps=4)
-    assert predicted.shape == (4, len(types), 2)
-    assert torch.equal(predicted[:, static], positions[static, -1].expand(4, -1, -1))
-    # Step by step by hand: a sliding window of the last history + 1 frames.
-    window = positions
-    for step in range(4):
-        next_position = simulator.predict_positions(window, types)
-        assert torch.allclose(predicted[step], next_position, atol=1e-6)
-        window = torch.cat([window[:, 1:], next_position[:, None]], dim=1)
+    boundary = Boundary.from_particles(simulator.bounds, positions[:, -1], types)
+    for constrain in (False, True):
+        predicted = rollout(simulator, positions, types, num_steps=4, constrain=constrain)
+        assert predicted.shape == (4, len(types), 2)
+        assert torch.equal(predicted[:, static], positions[static, -1].expand(4, -1, -1))
+        # Step by step by hand: a sliding window of the last history + 1 frames.
+        window = positions
+        for step in range(4):
+            next_position = simulator.predict_positions(window, types)
+            if constrain:
+                next_position = boundary.apply(window[:, -1], next_position, ~static)
+            assert torch.allclose(predicted[step], next_position, atol=1e-6)
+            window = torch.cat([window[:, 1:], next_position[:, None]], dim=1)
     # Given positions of the static particles are used as they are; the dynamic rows are ignored.
+    predicted = rollout(simulator, positions, types, num_steps=4, constrain=False)
     given = torch.rand(4, len(types), 2)
-    moved = rollout(simulator, positions, types, num_steps=4, static_positions=given)
+    moved = rollout(simulator, positions, types, num_steps=4, static_positions=given, constrain=False)
     assert torch.equal(moved[:, static], given[:, static])
     assert torch.equal(moved[0, ~static], predicted[0, ~static])
     with pytest.raises(ValueError, match="initial_positions"):

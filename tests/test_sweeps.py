@@ -17,7 +17,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from gnsx.pipeline import Diverged, DivergenceGuard, as_divergence, one_line
+from gnsx.pipeline import Diverged, as_divergence, one_line
 from gnsx.report import build_report, load_sweep
 from gnsx.time_budget import TrainingClock
 
@@ -86,16 +86,6 @@ def test_launcher_configs_compose():
     assert _compose_sweep("fig9", ["hydra/launcher=slurm"]).hydra.launcher.gpus_per_node == 1
 
 
-def test_divergence_guard_stops_at_a_non_finite_loss():
-    guard = DivergenceGuard()
-    trainer = SimpleNamespace(global_step=7)
-    guard.on_train_batch_end(trainer, None, {"loss": torch.tensor(0.5)}, None, 0)
-    with pytest.raises(Diverged, match="diverged: training loss is nan at step 7"):
-        guard.on_train_batch_end(trainer, None, {"loss": torch.tensor(float("nan"))}, None, 0)
-    with pytest.raises(Diverged, match="inf"):
-        guard.on_train_batch_end(trainer, None, torch.tensor(float("inf")), None, 0)
-
-
 def test_non_finite_positions_count_as_divergence_and_reasons_are_one_line():
     error = as_divergence(ValueError("data must be finite, check for nan or inf values"))
     assert isinstance(error, Diverged) and one_line(error).startswith("diverged: positions became NaN/Inf")
@@ -138,9 +128,9 @@ def _multirun(tmp_path: Path, dataset: Path, sweep_dir: Path, extra: list[str], 
     return subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=timeout, env=env)
 
 
-#: Makes exactly one cell of the grid (latent 8, 1 MP step) fail when its model is built: its history
-#: resolves to -1 (LearnedSimulator raises), every other cell's to 1. It is the first job, so the test also
-#: shows that the jobs after a failure still run.
+#: Makes exactly one cell of the grid (latent 8, 1 MP step) fail on bad input: its history resolves to -1
+#: (refused by the config checks before training), every other cell's to 1. It is the first job, so the test
+#: also shows that the jobs after a failure still run.
 FAIL_FIRST_CELL = [
     "+fail_8_1=-1",
     "model.history='${oc.select:fail_${model.latent_size}_${model.mp_steps},1}'",
@@ -168,7 +158,7 @@ def test_grid_multirun_records_every_job_and_the_report_shows_them(tmp_path, tin
 
     failed = results[names[0]]
     assert failed["status"] == "failed" and failed["job"] == 0
-    assert failed["error"] == "ValueError: LearnedSimulator: history must be >= 1, got -1"
+    assert failed["error"] == "ConfigError: model.history=-1: must be >= 1"  # refused before training
     assert failed["test"]["rollout_mse"] is None
     for name in names[1:]:
         job = results[name]
@@ -199,23 +189,31 @@ def test_grid_multirun_records_every_job_and_the_report_shows_them(tmp_path, tin
     markdown = outputs["markdown"].read_text()
     for name in names:
         assert name in markdown
-    assert "history must be >= 1" in markdown and "## Failed jobs" in markdown
+    assert "model.history=-1: must be >= 1" in markdown and "## Failed jobs" in markdown
     assert markdown.count("| ok |") == 3 and markdown.count("| failed |") == 1
     assert list(outputs["wandb"].glob("*.wandb"))
     assert [job.status for job in load_sweep(sweep_dir)] == ["failed", "ok", "ok", "ok"]
 
 
 def test_single_run_failure_is_recorded_then_raised(tmp_path, tiny_dataset):
+    """A run that diverges (an absurd learning rate: every step after the first has a NaN loss) is recorded
+    as failed in results.json and ends with one line and exit status 1 (bad input exits 2 before writing
+    anything: tests/test_bad_input.py)."""
     run_dir = tmp_path / "single"
     cmd = [
         sys.executable, str(ROOT / "train.py"), f"hydra.run.dir={run_dir}", f"data.root={tiny_dataset}",
-        "data.generate_if_missing=false", "logger=none", "model.latent_size=-1",
+        "data.generate_if_missing=false", "logger=none", "model.latent_size=8", "model.mlp_hidden_size=8",
+        "model.mp_steps=1", "train.lr_init=1e30", "train.lr_final=1e30", "train.max_skipped_steps=2",
+        "train.max_steps=20", "train.max_time=null", "evaluate.enabled=false",
     ]  # fmt: skip
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
-    assert done.returncode != 0
+    assert done.returncode == 1, done.stderr[-3000:]
+    assert done.stderr.strip().splitlines()[-1].startswith("error: diverged: 3 steps in a row")
+    assert "Traceback" not in done.stderr
     results = json.loads((run_dir / "results.json").read_text())
-    assert results["status"] == "failed" and "negative dimension" in results["error"]
+    assert results["status"] == "failed" and results["error"].startswith("diverged: 3 steps in a row")
     assert results["multirun"] is False and results["job"] is None
+    assert results["skipped_steps"] == 3 and results["global_step"] < 20
 
 
 def _failing_and_working_job(tmp_path: Path, dataset: Path, launcher: str) -> Path:
@@ -226,10 +224,11 @@ def _failing_and_working_job(tmp_path: Path, dataset: Path, launcher: str) -> Pa
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     results = _results(sweep_dir)
-    assert "negative dimension" in results["model.latent_size=-1,model.mp_steps=1"]["error"]
+    error = results["model.latent_size=-1,model.mp_steps=1"]["error"]
+    assert error == "ConfigError: model.latent_size=-1: must be >= 1"  # bad input, refused before training
     assert results["model.latent_size=8,model.mp_steps=1"]["status"] == "ok"
     report = build_report(sweep_dir, wandb_mode="disabled")
-    assert "negative dimension" in report["markdown"].read_text()
+    assert "model.latent_size=-1: must be >= 1" in report["markdown"].read_text()
     return sweep_dir
 
 

@@ -96,5 +96,8 @@ def test_throughput_cli_reports_rates(tiny_dataset, tmp_path, capsys):
     (result,) = json.loads(out.read_text())
     assert result["steps_per_s"] > 0 and result["samples_per_s"] == pytest.approx(2 * result["steps_per_s"])
     assert "samples/s" in capsys.readouterr().out
-    with pytest.raises(SystemExit):
-        main(["--data", str(tmp_path / "missing")])
+    assert main(["--data", str(tmp_path / "missing")]) == 2  # one line on stderr (gnsx.cli)
+    assert (
+        capsys.readouterr().err == f"error: --data {tmp_path / 'missing'}: no gnsx dataset here "
+        "(metadata.json missing); `make data` makes one\n"
+    )

@@ -23,8 +23,9 @@ Subcommands::
     python -m gnsx.data export DIR DST --format tfrecord|npz|h5 [--overwrite]
         Write a gnsx dataset in another format (every split plus metadata.json).
 
-Bad input (a missing file, a truncated record, NaN at some frame, ...) prints one line naming the file,
-trajectory, field and frame on stderr and exits with status 2.
+Bad input (a missing file, a truncated record, NaN at some frame, a negative --seed, an --out under a
+file, ...) prints one line naming the file, trajectory, field and frame (or the flag) on stderr and exits with
+status 2; --debug shows the traceback.
 """
 
 from __future__ import annotations
@@ -37,27 +38,26 @@ from pathlib import Path
 
 import numpy as np
 
+from gnsx.cli import ArgumentParser, check_int, check_output_path, run_main
 from gnsx.constants import NUM_PARTICLE_TYPES, PARTICLE_TYPE_NAMES
 from gnsx.data.formats import FORMATS, convert, export_dataset
 from gnsx.data.metadata import STATISTICS_KEYS
-from gnsx.data.store import SplitReader, list_splits, load_metadata
+from gnsx.data.store import SplitReader, list_splits, load_metadata, open_split
 from gnsx.errors import DataError
-
-EXIT_DATA_ERROR = 2
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI; return the exit status (0 success, 2 bad input)."""
+    """Run the CLI; return the exit status (0 success, 2 bad input: one line on stderr)."""
+    return run_main(_run, argv)
+
+
+def _run(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
-    try:
-        return args.run(args)
-    except DataError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_DATA_ERROR
+    return args.run(args)
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m gnsx.data",
         description="Generate, convert, inspect and export gnsx datasets.",
         epilog=__doc__.split("\n", 2)[2],  # the subcommand reference above, examples included
@@ -120,6 +120,9 @@ def _generate(args: argparse.Namespace) -> int:
         preset = get_preset(args.preset)
     except (KeyError, ValueError) as e:
         raise DataError("--preset", str(e.args[0]) if e.args else str(e)) from None
+    check_int(args.seed, "--seed", minimum=0)
+    check_int(args.workers, "--workers", minimum=1)
+    check_output_path(args.out, "--out")
     counts = {split: getattr(args, split) for split in ("train", "valid", "test")}
     counts = {split: n for split, n in counts.items() if n is not None}
     if any(n < 0 for n in counts.values()):
@@ -134,6 +137,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    check_output_path(args.dst, "DST")
     bounds = None
     if args.bounds is not None:
         if len(args.bounds) % 2:
@@ -167,6 +171,7 @@ def _parse_type_map(text: str) -> dict[int, int]:
 
 
 def _export(args: argparse.Namespace) -> int:
+    check_output_path(args.dst, "DST")
     counts = export_dataset(args.dir, args.dst, args.format, overwrite=args.overwrite)
     summary = ", ".join(f"{split} {n}" for split, n in counts.items())
     print(f"wrote {args.dst} ({args.format}): {summary} trajectories")
@@ -195,7 +200,7 @@ def format_info(root: str | Path) -> str:
     if meta.extra:
         lines.append(f"  other metadata keys: {', '.join(sorted(meta.extra))}")
     for split in list_splits(root):
-        reader = SplitReader(root, split)
+        reader = open_split(root, split, meta, check_values=False)
         lines.append(f"  {split}: {len(reader)} trajectories, {reader.total_frames} frames")
         if len(reader) == 0:
             continue

@@ -183,6 +183,24 @@ class SplitReader(Sequence[Trajectory]):
         """Frames summed over all trajectories of the split."""
         return int(self._index["num_frames"].sum())
 
+    def check_finite(self, chunk_rows: int = 1 << 21) -> None:
+        """Raise :class:`DataError` at the first NaN or Inf position of the split, naming the file,
+        trajectory, frame and particle (``data/small/train/positions.npy, trajectory 3: field 'position':
+        frame 40 has NaN (particle 7)``). Streams ``positions.npy`` in chunks of ``chunk_rows`` rows."""
+        total = self._positions.shape[0]
+        for start in range(0, total, chunk_rows):
+            chunk = np.asarray(self._positions[start : start + chunk_rows])
+            finite = np.isfinite(chunk).all(axis=1)
+            if finite.all():
+                continue
+            row = start + int(np.flatnonzero(~finite)[0])
+            t = int(np.searchsorted(self._index["position_offset"], row, side="right")) - 1
+            local = row - int(self._index["position_offset"][t])
+            frame, particle = divmod(local, int(self._index["num_particles"][t]))
+            kind = "NaN" if np.isnan(self._positions[row]).any() else "Inf"
+            where = trajectory_where(self.root / self.split / POSITIONS_FILE, t)
+            raise DataError(where, f"field 'position': frame {frame} has {kind} (particle {particle})")
+
     def num_frames(self, i: int) -> int:
         """Frames T_i of trajectory ``i``."""
         return int(self._index["num_frames"][self._check_index(i)])
@@ -196,6 +214,32 @@ class SplitReader(Sequence[Trajectory]):
         row = self._index[self._check_index(i)]
         start = int(row["type_offset"])
         return self._particle_type[start : start + int(row["num_particles"])]
+
+
+def open_split(
+    root: str | os.PathLike, split: str, metadata: Metadata, check_values: bool = True
+) -> SplitReader:
+    """A :class:`SplitReader` checked against the dataset's metadata before anything reads it.
+
+    Args:
+        metadata: the dataset's (``load_metadata(root)``): its ``dim`` must be the positions' dimension.
+        check_values: also scan every position for NaN/Inf (:meth:`SplitReader.check_finite`; ~0.1 s per
+            100 MB of positions), so bad data is named at the start instead of a NaN loss or a failing
+            rollout later.
+
+    Raises:
+        DataError: naming the metadata file or the positions file, trajectory, frame and particle.
+    """
+    reader = SplitReader(root, split)
+    if len(reader) and reader.dim != metadata.dim:
+        raise DataError(
+            str(Path(root) / METADATA_FILE),
+            f"key 'dim' is {metadata.dim} but {Path(root) / split / POSITIONS_FILE} holds {reader.dim}-D "
+            "positions",
+        )
+    if check_values:
+        reader.check_finite()
+    return reader
 
 
 def load_metadata(root: str | os.PathLike) -> Metadata:
@@ -353,6 +397,7 @@ def write_dataset(
     splits: Mapping[str, Iterable[Trajectory]],
     metadata: Metadata | Mapping[str, Any],
     overwrite: bool = False,
+    metadata_where: str | None = None,
 ) -> Metadata:
     """Write a whole dataset (every split, then ``metadata.json``) atomically; return its final metadata.
 
@@ -364,7 +409,9 @@ def write_dataset(
         metadata: :class:`Metadata` or a dict in DeepMind's schema. ``sequence_length`` and the statistics may
             be missing/``None``: ``sequence_length`` becomes the train split's shortest trajectory frames - 1,
             and the statistics are computed (:func:`~gnsx.data.metadata.compute_statistics`) from the written
-            train split.
+            train split. A given ``sequence_length`` must agree with the data: no trajectory may be shorter
+            than ``sequence_length + 1`` frames.
+        metadata_where: names the metadata's source in error messages (e.g. the converted ``metadata.json``).
 
     Raises:
         DataError: the target exists (without ``overwrite``), bad metadata, statistics missing with no
@@ -391,6 +438,8 @@ def write_dataset(
     try:
         for split, trajectories in splits.items():
             write_split(tmp, split, trajectories, dim=meta.dim, where=str(root / split))
+        if meta.sequence_length is not None:
+            _check_sequence_length(tmp, root, list(splits), meta.sequence_length, metadata_where)
         if need_train:
             train = SplitReader(tmp, "train")
             if len(train) == 0:
@@ -406,6 +455,24 @@ def write_dataset(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return meta
+
+
+def _check_sequence_length(
+    folder: Path, root: Path, splits: list[str], sequence_length: int, where: str | None
+) -> None:
+    """Refuse a ``sequence_length`` (transitions per trajectory) that promises more frames than a written
+    trajectory has (longer trajectories are fine: rollouts use each trajectory's own length)."""
+    where = where or str(root / METADATA_FILE)
+    frames = sequence_length + 1
+    problem = f"key 'sequence_length' is {sequence_length} ({frames} frames per trajectory) but"
+    hint = "; fix the key or remove it (gnsx then derives it from the data)"
+    for split in splits:
+        counts = SplitReader(folder, split).frame_counts
+        short = np.flatnonzero(counts < frames)
+        if short.size:
+            i = int(short[0])
+            found = f"trajectory {i} of split '{split}' has {int(counts[i])} frames"
+            raise DataError(where, f"{problem} {found}{hint}")
 
 
 def _write_split_files(folder: Path, trajectories: Iterable[Trajectory], dim: int | None, where: str) -> int:

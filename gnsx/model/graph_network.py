@@ -22,12 +22,19 @@ backward, for both model configs. What makes it fast (CPU profile of a training 
   slower forward + backward on this CPU.
 - No Python message-passing framework between the layers: one ``index_select`` per gathered node term and
   one ``index_add_`` per layer, nothing else per edge but the MLPs.
+
+Exact culling (``forward(..., decode=mask)``, :mod:`gnsx.model.culling`) is an option of this same path, not
+a second model: the nodes are renumbered by hop distance from the decoded ones, so each step updates a prefix
+of the node rows from a prefix of the (still receiver-sorted) edges, ``InteractionNetwork(num_receivers=...)``
+on slices.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+
+from gnsx.model.culling import plan_culling
 
 
 class MLP(nn.Sequential):
@@ -76,7 +83,8 @@ class InteractionNetwork(nn.Module):
 
     Shapes:
         forward(x ``[N, L]``, edge_index ``[2, E]`` (row 0 sender j, row 1 receiver i),
-        edge_attr ``[E, L]``) -> (x' ``[N, L]``, edge_attr' ``[E, L]``).
+        edge_attr ``[E, L]``) -> (x' ``[N, L]``, edge_attr' ``[E, L]``). With ``num_receivers=R`` (culling:
+        every receiver index is below R) only the first R nodes are updated and x' is ``[R, L]``.
 
     The parameter names (``edge_mlp.*``, ``node_mlp.*``) and shapes are those of every earlier gnsx version.
     """
@@ -97,27 +105,32 @@ class InteractionNetwork(nn.Module):
         # phi_v input order [sum_j m_ij, v_i], as graph_nets' NodeBlock.
         self.node_mlp = MLP(2 * latent_size, mlp_hidden_size, latent_size, mlp_hidden_layers, layer_norm)
 
-    def forward(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(
+        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, num_receivers: int | None = None
+    ) -> tuple[Tensor, Tensor]:
         senders, receivers = edge_index[0], edge_index[1]
         latent = self.latent_size
+        # Culling (gnsx.model.culling): only the first num_receivers nodes are updated; every receiver is
+        # below it, senders may be any row. Slices are views, so the full graph pays nothing for this.
+        receiver_x = x if num_receivers is None else x[:num_receivers]  # [R, L]
         first = self.edge_mlp.first
         weight_edge, weight_receiver, weight_sender = first.weight.split(latent, dim=1)  # [H, L] each
-        # phi_e's first layer, node parts once per node; the bias joins the N x H receiver term rather than
+        # phi_e's first layer, node parts once per node; the bias joins the R x H receiver term rather than
         # being broadcast over the E edges.
-        receiver_term = torch.addmm(first.bias, x, weight_receiver.t())  # [N, H]
+        receiver_term = torch.addmm(first.bias, receiver_x, weight_receiver.t())  # [R, H]
         sender_term = x @ weight_sender.t()  # [N, H]
         hidden = receiver_term.index_select(0, receivers) + sender_term.index_select(0, senders)  # [E, H]
         # In place: one pass over the E x H output instead of a separate matmul result and add.
         hidden.addmm_(edge_attr, weight_edge.t())
         messages = self.edge_mlp.after_first(hidden)  # [E, L]
         # Sum over each receiver's incoming edges; backward is messages.grad = grad.index_select(receivers).
-        aggregated = x.new_zeros(x.shape[0], messages.shape[1]).index_add_(0, receivers, messages)  # [N, L]
+        aggregated = x.new_zeros(receiver_x.shape[0], messages.shape[1]).index_add_(0, receivers, messages)
         node_first = self.node_mlp.first
         weight_aggregated, weight_node = node_first.weight.split(latent, dim=1)
-        node_hidden = torch.addmm(node_first.bias, x, weight_node.t()).addmm_(
+        node_hidden = torch.addmm(node_first.bias, receiver_x, weight_node.t()).addmm_(
             aggregated, weight_aggregated.t()
         )
-        x = x + self.node_mlp.after_first(node_hidden)
+        x = receiver_x + self.node_mlp.after_first(node_hidden)
         edge_attr = edge_attr + messages if self.edge_residual else messages
         return x, edge_attr
 
@@ -142,7 +155,9 @@ class EncodeProcessDecode(nn.Module):
         layer_norm: LayerNorm after every MLP except the decoder.
 
     Shapes:
-        forward(x ``[N, node_in]``, edge_index ``[2, E]``, edge_attr ``[E, edge_in]``) -> ``[N, out_size]``.
+        forward(x ``[N, node_in]``, edge_index ``[2, E]``, edge_attr ``[E, edge_in]``, decode ``[N]`` bool or
+        None) -> ``[N, out_size]``. With ``decode`` (exact culling, :mod:`gnsx.model.culling`) only the
+        rows of ``decode`` are computed, from the nodes within ``mp_steps`` hops of them; the others are 0.
     """
 
     def __init__(
@@ -166,9 +181,32 @@ class EncodeProcessDecode(nn.Module):
         )
         self.decoder = MLP(latent_size, mlp_hidden_size, out_size, mlp_hidden_layers, layer_norm=False)
 
-    def forward(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> Tensor:
+    def forward(
+        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor | None = None
+    ) -> Tensor:
+        if decode is not None:
+            return self._culled(x, edge_index, edge_attr, decode)
         node_latent = self.node_encoder(x)
         edge_latent = self.edge_encoder(edge_attr)
         for step in self.processor:
             node_latent, edge_latent = step(node_latent, edge_index, edge_latent)
         return self.decoder(node_latent)
+
+    def _culled(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor) -> Tensor:
+        """The same outputs for the nodes of ``decode``, computing only what they depend on (a shrinking
+        frontier, :mod:`gnsx.model.culling`); the other rows are 0."""
+        plan = plan_culling(edge_index, decode, len(self.processor))
+        node_latent = self.node_encoder(x.index_select(0, plan.nodes))  # [n_M, L]
+        edge_latent = self.edge_encoder(edge_attr.index_select(0, plan.edges))  # [e_{M-1}, L]
+        for step, hops_left in zip(self.processor, range(len(self.processor) - 1, -1, -1)):
+            # Step k updates the nodes within M - k hops, from the edges into them (prefixes of the plan).
+            num_edges = plan.edge_counts[hops_left]
+            node_latent, edge_latent = step(
+                node_latent,
+                plan.edge_index[:, :num_edges],
+                edge_latent[:num_edges],
+                num_receivers=plan.node_counts[hops_left],
+            )
+        decoded = self.decoder(node_latent[: plan.num_decoded])  # [n_0, out]
+        out = decoded.new_zeros(x.shape[0], decoded.shape[1])
+        return out.index_copy(0, plan.nodes[: plan.num_decoded], decoded)

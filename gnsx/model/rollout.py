@@ -1,4 +1,9 @@
-"""Autoregressive rollouts: the learned simulator fed its own predictions, and the physics-free baseline."""
+"""Autoregressive rollouts: the learned simulator fed its own predictions, and the physics-free baseline.
+
+Both apply the same :class:`gnsx.model.boundary.Boundary` to every step (box walls, static segments), so a
+rollout never leaves the box or tunnels through a ramp, and the model is scored against a baseline held to the
+same physics. ``constrain=False`` gives the raw model (what it would do on its own).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +14,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.model.boundary import Boundary
 from gnsx.model.simulator import LearnedSimulator
 
 
@@ -20,6 +26,7 @@ def rollout(
     num_steps: int,
     static_positions: Tensor | None = None,
     progress: bool = False,
+    constrain: bool = True,
 ) -> Tensor:
     """Predict ``num_steps`` frames by feeding each prediction back as input.
 
@@ -33,6 +40,8 @@ def rollout(
             the rows of static particles are read. ``None``: static particles stay at their last input
             position.
         progress: show a tqdm progress bar.
+        constrain: apply the scene's :class:`Boundary` (the model's box, segments between the static
+            particles of the last input frame) to every predicted frame; ``False``: the raw model.
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
@@ -50,12 +59,18 @@ def rollout(
             f"got {tuple(static_positions.shape)}"
         )
     static = (particle_type == KINEMATIC_PARTICLE_ID)[:, None]  # [N, 1]
+    dynamic = ~static[:, 0]
+    boundary = None
+    if constrain:
+        boundary = Boundary.from_particles(simulator.bounds.cpu(), initial_positions[:, -1], particle_type)
     window = initial_positions
     predictions = []
     for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
         next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
         if static_positions is not None:
             next_position = torch.where(static, static_positions[step], next_position)
+        if boundary is not None:
+            next_position = boundary.apply(window[:, -1], next_position, dynamic)
         predictions.append(next_position)
         window = torch.cat([window[:, 1:], next_position[:, None]], dim=1)
     if not predictions:
@@ -71,11 +86,11 @@ def physics_free_baseline(
     gravity_per_frame: Tensor,
     bounds: Tensor | Sequence[Sequence[float]],
 ) -> Tensor:
-    """Constant velocity plus gravity, clamped to the domain: what a learned model must beat.
+    """Constant velocity plus gravity, held by the scene's boundary: what a learned model must beat.
 
-    Each step: ``v <- v + g``, ``p <- clamp(p + v, bounds)``, then ``v <- p_new - p_old`` so a particle
-    that hits a wall stops moving into it (a perfectly inelastic wall) instead of piling up speed.
-    Static particles never move.
+    Each step: ``v <- v + g``, ``p <- boundary(p + v)`` (clamped into ``bounds``, pushed back from the static
+    segments, :class:`Boundary`), then ``v <- p_new - p_old`` so a particle that hits a wall or a ramp stops
+    moving into it (a perfectly inelastic wall) instead of piling up speed. Static particles never move.
 
     Args:
         initial_positions: ``[N, F, D]`` with ``F >= 2`` frames, oldest first (the last two give v).
@@ -97,15 +112,17 @@ def physics_free_baseline(
     gravity = torch.as_tensor(
         gravity_per_frame, dtype=initial_positions.dtype, device=initial_positions.device
     )
-    dynamic = (particle_type != KINEMATIC_PARTICLE_ID).to(initial_positions.dtype)[:, None]  # [N, 1]
+    moves = particle_type != KINEMATIC_PARTICLE_ID  # [N]
+    dynamic = moves.to(initial_positions.dtype)[:, None]  # [N, 1]
     position = initial_positions[:, -1]
+    boundary = Boundary.from_particles(bounds.cpu(), position, particle_type)
     velocity = (position - initial_positions[:, -2]) * dynamic
     frames = []
     for _ in range(num_steps):
         velocity = velocity + gravity * dynamic
-        next_position = torch.maximum(torch.minimum(position + velocity, bounds[:, 1]), bounds[:, 0])
-        # Static particles may lie outside the domain (DeepMind's ramps do not); never clamp them.
-        next_position = torch.where(dynamic.bool(), next_position, position)
+        # Static particles may lie outside the domain (DeepMind's ramps do not); the boundary never moves
+        # them.
+        next_position = boundary.apply(position, position + velocity * dynamic, moves)
         velocity = next_position - position
         position = next_position
         frames.append(position)

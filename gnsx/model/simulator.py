@@ -17,6 +17,17 @@ edge_residual       False        True
 self_edges          False        True (DeepMind's radius graph keeps i == j)
 ==================  ===========  ===========================================================
 
+Two switches change what is computed, not the model (they are not architecture; changing them on a trained
+model needs no retraining):
+
+* ``cull`` (default on): exact culling (:mod:`gnsx.model.culling`). Only dynamic particles are decoded, and
+  only the particles and edges their prediction depends on are computed, step by step. Their predictions
+  are those of the full graph up to float rounding; static rows of :meth:`forward` are 0 instead of the
+  (unused) values the decoder would give them. Exact for training too: the loss counts dynamic particles only.
+* ``freeze_speed`` (default None, off; approximate, opt-in): in :meth:`predict_positions`, a dynamic
+  particle at rest (every velocity of its window at most ``freeze_speed``, data units per frame) with no
+  moving particle within ``mp_steps`` hops is held like a static one until something that near moves.
+
 Time unit: one frame (dt = 1). Velocities and accelerations are per-frame differences of positions, the
 units of the dataset statistics; the physical dt of the data (2.5 ms for WaterRamps) never enters.
 """
@@ -29,6 +40,7 @@ import torch
 from torch import Tensor, nn
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
+from gnsx.model.culling import hop_distance, particles_in_reach
 from gnsx.model.features import edge_features, type_scalar_feature, velocity_features, wall_features
 from gnsx.model.graph_network import EncodeProcessDecode
 from gnsx.model.neighbors import METHODS, radius_graph
@@ -55,6 +67,9 @@ class LearnedSimulator(nn.Module):
         layer_norm: LayerNorm after every MLP but the decoder.
         self_edges: connect every particle to itself in the radius graph.
         neighbor_search: ``"auto"``, ``"kdtree"`` or ``"cell"`` (see :func:`radius_graph`).
+        cull: exact culling (module docstring); also settable on the model (``simulator.cull = False``).
+        freeze_speed: approximate freezing of particles at rest (module docstring, :meth:`frozen_particles`);
+            None (off) or a speed > 0 in data units per frame; also settable on the model.
 
     Attributes:
         input_frames: ``history + 1``, the number of position frames :meth:`forward` reads.
@@ -84,6 +99,8 @@ class LearnedSimulator(nn.Module):
         layer_norm: bool = True,
         self_edges: bool = False,
         neighbor_search: str = "auto",
+        cull: bool = True,
+        freeze_speed: float | None = None,
     ):
         super().__init__()
         self.config = {
@@ -106,6 +123,8 @@ class LearnedSimulator(nn.Module):
             "layer_norm": bool(layer_norm),
             "self_edges": bool(self_edges),
             "neighbor_search": str(neighbor_search),
+            "cull": bool(cull),
+            "freeze_speed": None if freeze_speed is None else float(freeze_speed),
         }
         self._check_config()
         cfg = self.config
@@ -166,10 +185,39 @@ class LearnedSimulator(nn.Module):
             )
         if len(cfg["wall_clip"]) != 2 or cfg["wall_clip"][0] > cfg["wall_clip"][1]:
             raise ValueError(f"LearnedSimulator: wall_clip must be (low, high), got {cfg['wall_clip']}")
+        if cfg["freeze_speed"] is not None and not cfg["freeze_speed"] > 0:
+            raise ValueError(f"LearnedSimulator: freeze_speed must be None or > 0, got {cfg['freeze_speed']}")
         if cfg["neighbor_search"] not in METHODS:
             raise ValueError(
                 f"LearnedSimulator: neighbor_search must be one of {METHODS}, got {cfg['neighbor_search']!r}"
             )
+
+    # The switches live in ``config`` so that ``LearnedSimulator(**config)`` rebuilds the model as it runs.
+    @property
+    def cull(self) -> bool:
+        """Exact culling on (see the module docstring)."""
+        return self.config["cull"]
+
+    @cull.setter
+    def cull(self, value: bool) -> None:
+        self.config["cull"] = bool(value)
+
+    @property
+    def freeze_speed(self) -> float | None:
+        """Speed (data units per frame) at or below which a particle counts as at rest; None: no freezing."""
+        return self.config["freeze_speed"]
+
+    @freeze_speed.setter
+    def freeze_speed(self, value: float | None) -> None:
+        if value is not None and not value > 0:
+            raise ValueError(f"freeze_speed must be None or > 0, got {value}")
+        self.config["freeze_speed"] = None if value is None else float(value)
+
+    @property
+    def reach(self) -> float:
+        """``mp_steps * radius`` (data units): no particle farther than this from a particle changes its
+        prediction (messages travel one radius per step)."""
+        return self.config["mp_steps"] * self.radius
 
     def num_parameters(self) -> int:
         """Number of trainable parameters."""
@@ -221,9 +269,44 @@ class LearnedSimulator(nn.Module):
     def forward(
         self, position_sequence: Tensor, particle_type: Tensor, batch: Tensor | None = None
     ) -> Tensor:
-        """Normalised acceleration ``[N, D]`` from positions ``[N, history + 1, D]`` (oldest first)."""
-        node_features, edge_index, edge_attr = self.build_graph(position_sequence, particle_type, batch)
-        return self.network(node_features, edge_index, edge_attr)
+        """Normalised acceleration ``[N, D]`` from positions ``[N, history + 1, D]`` (oldest first).
+
+        With :attr:`cull`, the rows of static particles are 0 (not computed); see the module docstring.
+        """
+        return self._accelerations(
+            position_sequence, particle_type, batch, particle_type != KINEMATIC_PARTICLE_ID
+        )
+
+    def _accelerations(
+        self,
+        position_sequence: Tensor,
+        particle_type: Tensor,
+        batch: Tensor | None,
+        decode: Tensor,
+        graph: tuple[Tensor, Tensor, Tensor] | None = None,
+    ) -> Tensor:
+        """Normalised acceleration ``[N, D]``; with :attr:`cull` only the rows of ``decode`` ``[N]`` (bool)
+        are computed, the others are 0. ``graph``: :meth:`build_graph`'s output when already built."""
+        if graph is not None:
+            return self.network(*graph, decode=decode if self.cull and not bool(decode.all()) else None)
+        if not self.cull or bool(decode.all()):  # nothing to leave out: the full graph, no bookkeeping
+            node_features, edge_index, edge_attr = self.build_graph(position_sequence, particle_type, batch)
+            return self.network(node_features, edge_index, edge_attr)
+        self._check_inputs(position_sequence, particle_type)
+        # Particles farther than the reach from every decoded one never enter the graph: the neighbour
+        # search, the features and the hop sets then only see the neighbourhood of the decoded particles.
+        keep = particles_in_reach(position_sequence[:, -1], decode, self.reach, batch)
+        if bool(keep.all()):
+            node_features, edge_index, edge_attr = self.build_graph(position_sequence, particle_type, batch)
+            return self.network(node_features, edge_index, edge_attr, decode=decode)
+        index = torch.nonzero(keep).squeeze(1)
+        node_features, edge_index, edge_attr = self.build_graph(
+            position_sequence.index_select(0, index),
+            particle_type.index_select(0, index),
+            None if batch is None else batch.index_select(0, index),
+        )
+        kept = self.network(node_features, edge_index, edge_attr, decode=decode.index_select(0, index))
+        return kept.new_zeros(position_sequence.shape[0], kept.shape[1]).index_copy(0, index, kept)
 
     def integrate(self, normalized_acceleration: Tensor, position_sequence: Tensor) -> Tensor:
         """De-normalise (eq. 4) and step semi-implicit Euler with dt = 1 (eq. 5).
@@ -233,8 +316,8 @@ class LearnedSimulator(nn.Module):
             position_sequence: ``[N, >= 2, D]`` positions, oldest first.
 
         Returns:
-            ``[N, D]`` next positions ``p + (v + a)`` with ``v = p[-1] - p[-2]`` (static particles included:
-            :meth:`predict_positions` holds them).
+            ``[N, D]`` next positions ``p + (v + a)`` with ``v = p[-1] - p[-2]`` (for whichever rows are
+            given: :meth:`predict_positions` gives the moving particles only).
         """
         acceleration = normalized_acceleration * self.acc_std + self.acc_mean
         most_recent_position = position_sequence[:, -1]
@@ -244,10 +327,52 @@ class LearnedSimulator(nn.Module):
     def predict_positions(
         self, position_sequence: Tensor, particle_type: Tensor, batch: Tensor | None = None
     ) -> Tensor:
-        """Next positions ``[N, D]``; static (kinematic) particles keep their most recent position."""
-        next_position = self.integrate(self(position_sequence, particle_type, batch), position_sequence)
-        static = (particle_type == KINEMATIC_PARTICLE_ID)[:, None]
-        return torch.where(static, position_sequence[:, -1], next_position)
+        """Next positions ``[N, D]``; static (kinematic) particles keep their most recent position, and so do
+        frozen ones (:meth:`frozen_particles`, when :attr:`freeze_speed` is set). Only the others are decoded
+        (with :attr:`cull`) and integrated."""
+        moving = particle_type != KINEMATIC_PARTICLE_ID  # [N]
+        graph = None
+        if self.freeze_speed is not None:  # the freeze test needs the whole graph: build it once for both
+            graph = self.build_graph(position_sequence, particle_type, batch)
+            moving = moving & ~self.frozen_particles(position_sequence, particle_type, edge_index=graph[1])
+        acceleration = self._accelerations(position_sequence, particle_type, batch, moving, graph)
+        index = torch.nonzero(moving).squeeze(1)
+        moved = self.integrate(acceleration.index_select(0, index), position_sequence.index_select(0, index))
+        return position_sequence[:, -1].index_copy(0, index, moved)
+
+    def frozen_particles(
+        self,
+        position_sequence: Tensor,
+        particle_type: Tensor,
+        batch: Tensor | None = None,
+        edge_index: Tensor | None = None,
+    ) -> Tensor:
+        """Dynamic particles at rest in a resting neighbourhood (approximate freezing), ``[N]`` bool.
+
+        At rest: every velocity of the window (per-frame position differences) at most :attr:`freeze_speed`
+        long. Resting neighbourhood: no moving (not at rest) dynamic particle within ``mp_steps`` hops in the
+        radius graph, the model's receptive field. The approximation: the frozen particle's own predicted
+        motion, small while its neighbourhood rests, is dropped. A frozen particle is held, so its velocity
+        becomes 0 and it stays frozen until a moving particle comes within that many hops; measured error and
+        its failure case (a block frozen at the top of its arc) in ``docs/culling.md``.
+
+        Args:
+            position_sequence, particle_type, batch: as :meth:`forward`.
+            edge_index: the radius graph ``[2, E]`` of the most recent positions when already built.
+        Returns:
+            ``[N]`` bool; all False when :attr:`freeze_speed` is None.
+        """
+        dynamic = particle_type != KINEMATIC_PARTICLE_ID
+        if self.freeze_speed is None:
+            return torch.zeros_like(dynamic)
+        if edge_index is None:
+            edge_index = radius_graph(
+                position_sequence[:, -1], self.radius, batch, method=self.neighbor_search
+            )
+        speed = (position_sequence[:, 1:] - position_sequence[:, :-1]).norm(dim=-1).amax(dim=1)  # [N]
+        resting = dynamic & (speed <= self.freeze_speed)
+        steps = self.config["mp_steps"]
+        return resting & (hop_distance(edge_index, dynamic & ~resting, steps) > steps)
 
     def normalized_target(self, next_position: Tensor, position_sequence: Tensor) -> Tensor:
         """Normalised acceleration ``[N, D]`` that moves ``position_sequence`` to ``next_position``.

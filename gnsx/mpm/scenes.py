@@ -11,6 +11,7 @@ particles every ``ramp_spacing``.
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -90,14 +91,13 @@ class Scene:
         """
         if not isinstance(d, Mapping):
             raise DataError(where, f"expected a mapping with 'blocks' and 'ramps', got {type(d).__name__}")
-        unknown = set(d) - {"blocks", "ramps"}
-        if unknown:
-            raise DataError(where, f"unknown key(s) {sorted(unknown)}; expected 'blocks' and 'ramps'")
+        _check_keys(d, ("blocks", "ramps"), where)
         blocks = []
         for i, b in enumerate(_as_list(d.get("blocks", []), f"{where}.blocks")):
             w = f"{where}.blocks[{i}]"
             if not isinstance(b, Mapping) or not {"lower", "upper"} <= set(b):
                 raise DataError(w, "expected a mapping with 'lower', 'upper' and optional 'velocity'")
+            _check_keys(b, ("lower", "upper", "velocity"), w)
             lower = _point(b["lower"], f"{w}.lower")
             upper = _point(b["upper"], f"{w}.upper")
             if not (lower[0] < upper[0] and lower[1] < upper[1]):
@@ -317,6 +317,16 @@ def segment_rect_distance(p0: np.ndarray, p1: np.ndarray, lower: np.ndarray, upp
     return float(
         min(segment_distance(ends, edges).min(), segment_distance(corners, np.stack([p0, p1])[None]).min())
     )
+
+
+def _check_keys(d: Mapping[str, Any], allowed: Sequence[str], where: str) -> None:
+    """Refuse keys outside ``allowed`` (a misspelt ``velocty`` would otherwise be ignored silently)."""
+    unknown = sorted(str(key) for key in d if key not in allowed)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], allowed, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        expected = ", ".join(f"'{key}'" for key in allowed)
+        raise DataError(where, f"unknown key(s) {unknown}{hint}; expected {expected}")
 
 
 def _as_list(value: Any, where: str) -> list:

@@ -4,7 +4,7 @@
 ``fmt``        files               module
 =============  ==================  ===============================================================
 ``tfrecord``   ``{split}.tfrecord``  DeepMind ``learning_to_simulate`` (WaterRamps ...), :mod:`.tfrecord`
-``npz``        ``{split}.npz``       geoelements/gns, :mod:`.npz` (unpickles: trusted files only)
+``npz``        ``{split}.npz``       geoelements/gns, :mod:`.npz` (numpy-only unpickler, no code)
 ``h5``         ``{split}.h5``        LagrangeBench, :mod:`.hdf5`
 =============  ==================  ===============================================================
 
@@ -214,7 +214,7 @@ def convert(
     if type_map:
         lookup = _type_lookup(type_map)
         sources = {split: _remap_types(trajs, lookup) for split, trajs in sources.items()}
-    return write_dataset(dst, sources, meta, overwrite=overwrite)
+    return write_dataset(dst, sources, meta, overwrite=overwrite, metadata_where=str(meta_path))
 
 
 def _check_format(fmt: str) -> str:

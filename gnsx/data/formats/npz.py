@@ -7,9 +7,11 @@ array ``[2]`` (or ``[3]``) holding ``positions`` ``[T, N, D]`` (float32 or float
 ``simulation_trajectory_<i>``; newer files may instead hold one member ``gns_data``, an array of such tuples.
 ``material_property`` (a per-particle feature gnsx does not model) is ignored.
 
-**Pickle**: object arrays can only be stored pickled, so reading uses ``np.load(..., allow_pickle=True)``,
-which can execute code from a malicious file: read only ``.npz`` files you trust. This is the only reader in
-gnsx that unpickles; gnsx's own store never does.
+**Pickle**: object arrays can only be stored pickled, and a plain unpickler runs whatever code a malicious
+file names. gnsx never calls one on data: the object members are read by :class:`NumpyUnpickler`, which
+rebuilds numpy arrays, dtypes and scalars and refuses any other global (a :class:`~gnsx.errors.DataError`
+naming the member and the refused name), and every other member with ``allow_pickle=False``. gnsx's own
+store never holds object arrays.
 
 Keys: the trailing integer of the member name (``simulation_trajectory_12`` -> 12), else the member's position
 in the file. The writer names members ``simulation_trajectory_<key>`` and streams them into the zip one at a
@@ -18,6 +20,8 @@ time (``np.savez_compressed`` would need every trajectory in memory).
 
 from __future__ import annotations
 
+import importlib
+import io
 import os
 import pickle
 import re
@@ -56,18 +60,20 @@ def read_npz(path: str | os.PathLike) -> Iterator[Trajectory]:
             :func:`~gnsx.data.validate.check_trajectory` failure, naming the file and trajectory (and member).
     """
     path = Path(path)
+    if not path.is_file():
+        raise DataError(str(path), "file not found")
     try:
-        npz = np.load(path, allow_pickle=True)  # pickle required: see the module docstring
-    except FileNotFoundError:
-        raise DataError(str(path), "file not found") from None
+        archive = zipfile.ZipFile(path)
     except _LOAD_ERRORS as e:
+        with open(path, "rb") as f:
+            single = f.read(6) == b"\x93NUMPY"
+        if single:
+            raise DataError(str(path), "expected an .npz archive, found a single .npy array") from None
         raise DataError(str(path), f"not a readable .npz file ({e})") from None
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise DataError(str(path), "expected an .npz archive, found a single .npy array")
-    with npz:
-        names = list(npz.files)
+    with archive:
+        names = [n[: -len(".npy")] for n in archive.namelist() if n.endswith(".npy")]
         if GNS_DATA_KEY in names:
-            items = _load_member(npz, GNS_DATA_KEY, path)
+            items = _load_member(archive, GNS_DATA_KEY, path)
             for i, item in enumerate(items):
                 where = f"{trajectory_where(path, i)} (member '{GNS_DATA_KEY}'[{i}])"
                 yield _to_trajectory(item, key=i, where=where)
@@ -76,14 +82,61 @@ def read_npz(path: str | os.PathLike) -> Iterator[Trajectory]:
             where = f"{trajectory_where(path, i)} (member '{name}')"
             match = _TRAILING_INT.search(name)
             key = int(match.group(1)) if match else i
-            yield _to_trajectory(_load_member(npz, name, path), key=key, where=where)
+            yield _to_trajectory(_load_member(archive, name, path), key=key, where=where)
 
 
-def _load_member(npz: np.lib.npyio.NpzFile, name: str, path: Path) -> np.ndarray:
+#: The only globals an object member may name: numpy's array, dtype and scalar reconstruction.
+_NUMPY_GLOBALS = {
+    ("numpy", "ndarray"),
+    ("numpy", "dtype"),
+    ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "scalar"),
+    ("numpy._core.numeric", "_frombuffer"),
+}
+
+
+class NumpyUnpickler(pickle.Unpickler):
+    """An unpickler that rebuilds numpy arrays, dtypes and scalars and refuses every other global (so no
+    code named by a data file runs). ``numpy.core`` (numpy 1) and ``numpy._core`` (numpy 2) are the same."""
+
+    def find_class(self, module: str, name: str):
+        canonical = module.replace("numpy.core.", "numpy._core.", 1)
+        if (canonical, name) not in _NUMPY_GLOBALS:
+            raise pickle.UnpicklingError(f"refused global {module}.{name}")
+        for candidate in (canonical, module.replace("numpy._core.", "numpy.core.", 1)):
+            try:
+                return getattr(importlib.import_module(candidate), name)
+            except (ImportError, AttributeError):
+                continue
+        raise pickle.UnpicklingError(f"cannot find {module}.{name}")
+
+
+def _load_member(archive: zipfile.ZipFile, name: str, path: Path) -> np.ndarray:
+    """Member ``name`` of the archive: plain arrays with ``allow_pickle=False``, object arrays through
+    :class:`NumpyUnpickler`."""
+    where = f"{path} (member '{name}')"
     try:
-        return npz[name]
+        data = io.BytesIO(archive.read(f"{name}.npy"))
+        version = np.lib.format.read_magic(data)
+        header = (
+            np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        )
+        shape, fortran_order, dtype = header(data)
+        if not dtype.hasobject:
+            data.seek(0)
+            return np.lib.format.read_array(data, allow_pickle=False)
+        array = NumpyUnpickler(data).load()
+    except pickle.UnpicklingError as e:
+        if str(e).startswith("refused global"):
+            raise DataError(
+                where, f"{e}: gnsx reads numpy arrays only from data files (no pickled code)"
+            ) from None
+        raise DataError(where, f"cannot read: truncated or corrupt ({e})") from None
     except _LOAD_ERRORS as e:
-        raise DataError(f"{path} (member '{name}')", f"cannot read: truncated or corrupt ({e})") from None
+        raise DataError(where, f"cannot read: truncated or corrupt ({e})") from None
+    if not isinstance(array, np.ndarray):
+        raise DataError(where, f"expected an array, the pickle holds {type(array).__name__}")
+    return array
 
 
 def _to_trajectory(item: object, key: int, where: str) -> Trajectory:

@@ -1,0 +1,355 @@
+"""Hard cases: scenes built to break a learned simulator, rolled out next to the MPM ground truth.
+
+    python -m gnsx.hardcases --checkpoint pretrained/small --out outputs/hardcases      # make hardcases
+    python -m gnsx.hardcases --checkpoint <run dir> --cases jet_corner pool_rest --frames-scale 0.2
+
+Every case is a :class:`gnsx.mpm.scenes.Scene` of the ``small`` preset (walls at 0.1 and 0.9 m): fast jets
+into corners, walls and ramps, a head-on collision, a tall column, water exactly on the walls and on a ramp,
+a pool at rest, a single particle, ramps without water, scenes 4x and ~10x the training particle count (268
+water particles, median of the preset's training scenes) and a rollout 10x the training horizon. Each runs
+the MPM solver, then the model from the MPM's first ``H + 1`` frames twice: ``raw`` (the model alone,
+``constrain=False``) and ``held`` (the default rollout, held by :class:`gnsx.model.boundary.Boundary`).
+
+Per case and variant (``report.json`` / ``report.md``, one strip per case, MPM | raw | held):
+
+================  ===========================================================================================
+column            meaning
+================  ===========================================================================================
+``max_speed``     fastest water particle over the predicted frames, m/s; ``truth_max_speed``: the MPM's;
+                  ``speed_ratio``: model / MPM (target for the shipped weights: <= 2)
+``out_final``     water particles outside the box at the last frame; ``out_max``: the most at any frame
+``crossings``     steps of a water particle through a ramp segment (:meth:`Boundary.count_crossings`)
+``nonfinite``     NaN or Inf coordinates
+``area_ratio``    area covered by the water at the last frame, model / MPM (cells of 2 particle spacings;
+                  below 1 the model lost volume)
+``drift``         mean water displacement over the last 100 frames, cm (the MPM's next to it): how still a
+                  pool at rest stays (target < 0.5 cm per 100 frames)
+``blew_up``       :func:`gnsx.health.rollout_health`: NaN, or faster than the blow-up speed
+================  ===========================================================================================
+
+Precision: the ``dam_break`` case is also rolled out in float64 and the float32 rollout's distance from it
+(RMS over water particles, m) is reported at a few frames: how far rounding alone moves a rollout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.data.metadata import Metadata
+from gnsx.health import rollout_health
+from gnsx.model.rollout import rollout
+from gnsx.model.simulator import LearnedSimulator
+from gnsx.mpm.presets import Preset, get_preset
+from gnsx.mpm.scenes import Scene, ramp_particles
+from gnsx.scoring import json_ready
+
+#: Variants of the model's rollout: the raw model, and the one held by the scene's boundary (the default).
+VARIANTS = ("raw", "held")
+#: Drift is measured over this many frames at the end of a rollout.
+DRIFT_FRAMES = 100
+#: Water area is counted on cells of this many particle spacings.
+AREA_CELL_SPACINGS = 2.0
+
+
+@dataclass(frozen=True)
+class HardCase:
+    """One hard scene.
+
+    Attributes:
+        name: short id (file names, ``--cases``).
+        description: what makes it hard.
+        scene: :meth:`Scene.to_dict` layout (metres, m/s); ``blocks: []`` is a scene of ramps alone.
+        frames_factor: rollout length in units of the preset's ``num_frames``.
+    """
+
+    name: str
+    description: str
+    scene: dict
+    frames_factor: float = 1.0
+
+
+def _block(lower, upper, velocity=(0.0, 0.0)) -> dict:
+    return {"lower": list(lower), "upper": list(upper), "velocity": list(velocity)}
+
+
+_FLOOR_RAMP = [[0.45, 0.3], [0.85, 0.14]]
+CASES = (
+    HardCase("jet_corner", "5 m/s jet into the lower-right corner",
+             {"blocks": [_block((0.45, 0.4), (0.6, 0.5), (3.54, -3.54))], "ramps": []}),
+    HardCase("jet_wall", "3 m/s jet into the right wall",
+             {"blocks": [_block((0.45, 0.2), (0.6, 0.3), (3.0, 0.0))], "ramps": []}),
+    HardCase("jet_ramp", "6 m/s jet down onto a ramp",
+             {"blocks": [_block((0.55, 0.6), (0.65, 0.7), (0.0, -6.0))], "ramps": [_FLOOR_RAMP]}),
+    HardCase("head_on", "two blocks colliding head-on at 3 m/s each",
+             {"blocks": [_block((0.15, 0.2), (0.3, 0.3), (3.0, 0.0)),
+                         _block((0.7, 0.2), (0.85, 0.3), (-3.0, 0.0))], "ramps": []}),
+    HardCase("tall_column", "a tall, narrow column collapsing",
+             {"blocks": [_block((0.1, 0.1), (0.2, 0.88))], "ramps": []}),
+    HardCase("on_walls", "water placed exactly on the floor and the left wall",
+             {"blocks": [_block((0.1, 0.1), (0.3, 0.25))], "ramps": []}),
+    HardCase("on_ramp", "water resting on a ramp from the first frame",
+             {"blocks": [_block((0.5, 0.28), (0.65, 0.4))], "ramps": [[[0.4, 0.25], [0.8, 0.25]]]}),
+    HardCase("pool_rest", "a pool at rest, wall to wall",
+             {"blocks": [_block((0.1, 0.1), (0.9, 0.2))], "ramps": []}),
+    HardCase("single_particle", "one water particle falling onto a ramp",
+             {"blocks": [_block((0.5, 0.6), (0.51, 0.61))], "ramps": [_FLOOR_RAMP]}),
+    HardCase("statics_only", "ramps and no water", {"blocks": [], "ramps": [_FLOOR_RAMP]}),
+    HardCase("dense_4x", "4x the training particle count",
+             {"blocks": [_block((0.1, 0.1), (0.6, 0.6))], "ramps": []}),
+    HardCase("dense_10x", "~10x the training particle count (the box nearly full)",
+             {"blocks": [_block((0.1, 0.1), (0.9, 0.88))], "ramps": []}),
+    HardCase("long_horizon", "a dam break past a ramp for 10x the training horizon",
+             {"blocks": [_block((0.12, 0.12), (0.35, 0.55))], "ramps": [[[0.55, 0.12], [0.85, 0.25]]]},
+             frames_factor=10.0),
+)  # fmt: skip
+PRECISION_CASE = HardCase(
+    "dam_break", "float32 against float64",
+    {"blocks": [_block((0.12, 0.12), (0.35, 0.55))], "ramps": [[[0.55, 0.12], [0.85, 0.25]]]},
+)  # fmt: skip
+
+
+def water_area(position: np.ndarray, cell: float) -> float:
+    """Area covered by particles: occupied square cells of side ``cell`` times ``cell^2``.
+
+    Args:
+        position: ``[N, 2]`` positions (m); cell: cell side (m).
+    """
+    position = np.asarray(position, dtype=np.float64)
+    position = position[np.isfinite(position).all(1)]
+    if len(position) == 0:
+        return 0.0
+    cells = np.unique(np.floor(position / cell).astype(np.int64), axis=0)
+    return float(len(cells) * cell * cell)
+
+
+def drift(positions: np.ndarray, mask: np.ndarray, frames: int = DRIFT_FRAMES) -> float:
+    """Mean displacement of the ``mask`` particles over the last ``frames`` frames (data units; NaN when the
+    rollout is shorter)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    if len(positions) <= frames or not mask.any():
+        return float("nan")
+    return float(np.linalg.norm(positions[-1, mask] - positions[-1 - frames, mask], axis=-1).mean())
+
+
+def ground_truth(case: HardCase, preset: Preset, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The case simulated by the preset's MPM solver: ``positions [T, N, 2]`` float32, ``particle_type [N]``.
+
+    A scene of ramps alone is not simulated: nothing in it moves.
+    """
+    scene = Scene.from_dict(case.scene, where=case.name)
+    num_frames = max(int(round(case.frames_factor * preset.num_frames)), 2)
+    if not scene.blocks:
+        ramps = ramp_particles(scene, preset.ramp_spacing).astype(np.float32)
+        types = np.full(len(ramps), KINEMATIC_PARTICLE_ID, dtype=np.int64)
+        return np.broadcast_to(ramps, (num_frames, *ramps.shape)).copy(), types
+    from gnsx.mpm.generate import simulate_scene
+
+    trajectory = simulate_scene(scene, replace(preset, num_frames=num_frames), seed=seed)
+    return trajectory.position, trajectory.particle_type
+
+
+@torch.inference_mode()
+def model_rollout(
+    simulator: LearnedSimulator, truth: np.ndarray, particle_type: np.ndarray, constrain: bool
+) -> np.ndarray:
+    """The model from the truth's first ``H + 1`` frames to its last: ``[T, N, 2]`` (inputs included)."""
+    frames = simulator.input_frames
+    dtype = simulator.acc_std.dtype
+    initial = torch.from_numpy(np.ascontiguousarray(truth[:frames])).to(dtype).transpose(0, 1)
+    types = torch.from_numpy(particle_type)
+    predicted = rollout(simulator, initial, types, len(truth) - frames, constrain=constrain)
+    return np.concatenate([truth[:frames].astype(np.float64), predicted.double().numpy()])
+
+
+def case_metrics(
+    predicted: np.ndarray,
+    truth: np.ndarray,
+    particle_type: np.ndarray,
+    metadata: Metadata,
+    input_frames: int,
+    spacing: float,
+) -> dict:
+    """The report's columns (module docstring) for one rollout of one case."""
+    water = particle_type != KINEMATIC_PARTICLE_ID
+    health = rollout_health(predicted, particle_type, metadata, first_frame=input_frames)
+    truth_health = rollout_health(truth, particle_type, metadata, first_frame=input_frames)
+    cell = AREA_CELL_SPACINGS * spacing
+    truth_area = water_area(truth[-1, water], cell)
+    return {
+        "water_particles": int(water.sum()),
+        "frames": int(len(truth)),
+        "max_speed": health["max_speed"],
+        "truth_max_speed": truth_health["max_speed"],
+        "speed_ratio": health["max_speed"] / truth_health["max_speed"]
+        if truth_health["max_speed"] > 0
+        else float("nan"),
+        "out_final": health["out_of_bounds_final"],
+        "out_max": health["out_of_bounds_max"],
+        "crossings": health["ramp_crossings"],
+        "truth_crossings": truth_health["ramp_crossings"],
+        "nonfinite": health["nonfinite"],
+        "area_ratio": water_area(predicted[-1, water], cell) / truth_area if truth_area > 0 else float("nan"),
+        "drift_cm": 100 * drift(predicted, water),
+        "truth_drift_cm": 100 * drift(truth, water),
+        "blew_up": health["blew_up"],
+    }
+
+
+def precision(simulator: LearnedSimulator, preset: Preset, frames_scale: float = 1.0) -> dict:
+    """float32 against float64 on :data:`PRECISION_CASE`: RMS distance of the water (m) at a few frames."""
+    case = replace(PRECISION_CASE, frames_factor=PRECISION_CASE.frames_factor * frames_scale)
+    truth, types = ground_truth(case, preset)
+    single = model_rollout(simulator, truth, types, constrain=True)
+    double = model_rollout(simulator.double(), truth, types, constrain=True)
+    simulator.float()
+    water = types != KINEMATIC_PARTICLE_ID
+    rms = np.sqrt(((single[:, water] - double[:, water]) ** 2).sum(-1).mean(-1))  # [T]
+    picks = sorted({f for f in (10, 50, 100, len(truth) - 1) if f < len(truth)})
+    return {"case": case.name, "frames": int(len(truth)), "rms_m": {int(f): float(rms[f]) for f in picks}}
+
+
+def run_suite(
+    simulator: LearnedSimulator,
+    cases: tuple[HardCase, ...] = CASES,
+    preset: Preset | None = None,
+    out_dir: str | Path | None = None,
+    frames_scale: float = 1.0,
+    strips: bool = True,
+    progress: bool = True,
+) -> dict:
+    """Run every case (MPM, raw and held model rollouts) and write ``report.json``, ``report.md`` and one
+    strip per case into ``out_dir`` (when given). Returns the report: ``{"cases": [row, ...], "precision":
+    ...}``, one row per case and variant."""
+    preset = preset or get_preset("small")
+    simulator = simulator.cpu().eval()
+    metadata = _metadata(simulator, preset)
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for case in cases:
+        start = time.perf_counter()
+        scaled = replace(case, frames_factor=case.frames_factor * frames_scale)
+        truth, types = ground_truth(scaled, preset)
+        rollouts = {v: model_rollout(simulator, truth, types, constrain=v == "held") for v in VARIANTS}
+        for variant, predicted in rollouts.items():
+            metrics = case_metrics(
+                predicted, truth, types, metadata, simulator.input_frames, preset.particle_spacing
+            )
+            rows.append({"case": case.name, "variant": variant, **metrics})
+        if out is not None and strips:
+            _strip(out / "strips" / f"{case.name}.png", truth, rollouts, types, preset)
+        if progress:
+            held = rows[-1]
+            print(
+                f"{case.name:>16}: {held['water_particles']:5d} water, {held['frames']} frames, "
+                f"{time.perf_counter() - start:5.1f} s",
+                file=sys.stderr,
+            )
+    report = {"cases": rows, "precision": precision(simulator, preset, frames_scale)}
+    if out is not None:
+        (out / "report.json").write_text(json.dumps(json_ready(report), indent=2))
+        (out / "report.md").write_text(format_report(report))
+    return report
+
+
+def _metadata(simulator: LearnedSimulator, preset: Preset) -> Metadata:
+    from gnsx.scene_rollout import scene_metadata
+
+    return scene_metadata(simulator, preset, preset.num_frames)
+
+
+def _strip(path: Path, truth, rollouts: dict, types, preset: Preset) -> None:
+    from gnsx.render import save_strip
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    panels = [truth.astype(np.float32)] + [r.astype(np.float32) for r in rollouts.values()]
+    panels = [np.nan_to_num(p, nan=-1.0, posinf=-1.0, neginf=-1.0) for p in panels]  # off-screen
+    every = max(len(truth) // 5, 1)
+    titles = ["MPM ground truth", "model, raw", "model, held by the boundary"]
+    bounds = np.array([preset.bounds, preset.bounds], dtype=np.float64)
+    save_strip(panels, types, bounds, path, titles, every=every, count=6)
+
+
+#: The markdown table: (header, key, format).
+_COLUMNS = (
+    ("case", "case", "s"), ("variant", "variant", "s"), ("water", "water_particles", "d"),
+    ("frames", "frames", "d"), ("max speed m/s", "max_speed", ".3g"), ("MPM m/s", "truth_max_speed", ".3g"),
+    ("speed ratio", "speed_ratio", ".2f"), ("out (final/max)", None, ""), ("crossings", "crossings", "d"),
+    ("NaN", "nonfinite", "d"), ("area ratio", "area_ratio", ".2f"), ("drift cm/100", "drift_cm", ".3f"),
+    ("MPM drift", "truth_drift_cm", ".3f"), ("blew up", "blew_up", ""),
+)  # fmt: skip
+
+
+def format_report(report: dict) -> str:
+    """The report as markdown: one table row per case and variant, and the precision line."""
+    head = "| " + " | ".join(h for h, _, _ in _COLUMNS) + " |"
+    lines = ["# Hard cases", "", head, "|" + "---|" * len(_COLUMNS)]
+    for row in report["cases"]:
+        cells = []
+        for _, key, fmt in _COLUMNS:
+            if key is None:
+                cells.append(f"{row['out_final']}/{row['out_max']}")
+            elif fmt == "":
+                cells.append("**yes**" if row[key] else "no")
+            else:
+                value = row[key]
+                cells.append("-" if value is None or (isinstance(value, float) and math.isnan(value))
+                             else format(value, fmt))  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    p = report.get("precision")
+    if p:
+        rms = ", ".join(f"frame {f}: {v:.2e} m" for f, v in p["rms_m"].items())
+        lines += ["", f"float32 vs float64 ({p['case']}, held): RMS distance of the water {rms}."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gnsx.hardcases", description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--checkpoint", default="pretrained/small", help="a .ckpt, a run dir or pretrained/<name>"
+    )
+    parser.add_argument("--out", default="outputs/hardcases", help="report folder (created)")
+    parser.add_argument("--cases", nargs="*", help=f"subset of {[c.name for c in CASES]}")
+    parser.add_argument("--frames-scale", type=float, default=1.0, help="scale every rollout's length")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (1: no collapse when other jobs share the CPU)",
+    )
+    args = parser.parse_args(argv)
+    from gnsx.checkpoints import load_simulator
+
+    names = {c.name: c for c in CASES}
+    unknown = sorted(set(args.cases or []) - set(names))
+    if unknown:
+        parser.exit(2, f"error: --cases: unknown {unknown}; choose from {sorted(names)}\n")
+    if not args.frames_scale > 0:
+        parser.exit(2, f"error: --frames-scale must be > 0, got {args.frames_scale}\n")
+    torch.set_num_threads(args.threads)
+    checkpoint = Path(args.checkpoint)
+    if checkpoint.is_dir() and (checkpoint / "model.ckpt").is_file():
+        checkpoint = checkpoint / "model.ckpt"
+    simulator = load_simulator(checkpoint)
+    cases = tuple(names[n] for n in args.cases) if args.cases else CASES
+    report = run_suite(simulator, cases, out_dir=args.out, frames_scale=args.frames_scale)
+    print(format_report(report))
+    print(f"report: {Path(args.out) / 'report.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    from gnsx.cli import run_main
+
+    sys.exit(run_main(main))

@@ -1,0 +1,110 @@
+"""How many CPU threads torch uses: enough to use idle cores, never more than the cores left free.
+
+Why not torch's default (one thread per core): its OpenMP threads spin-wait for each other at every
+operation, and when other processes hold some of the cores a waiting thread burns its core while the thread
+it waits for is not scheduled. Measured on this repository's 2-core machine with other jobs running: the
+demo trained at 1.8 steps/s with torch's default of 2 threads and at 8.8 steps/s with 1 thread (issue 11);
+``python -m gnsx.throughput --data data/small --batch-size 2`` at load ~3 ran 11.2-14.5 steps/s with 1
+thread, and with 2 threads did not finish 70 steps in 200 s. A run on an idle machine loses by the same rule
+only what the idle core would have added (~1.6x at most here). Load that arrives after the choice is
+handled by ``OMP_WAIT_POLICY=PASSIVE``, which the scripts set (:func:`gnsx.cli.passive_omp_threads`):
+waiting threads sleep instead of spinning; 2 threads at load ~3 then ran 11.3 steps/s.
+
+``threads: auto`` (the default of ``train.py``) therefore takes the cores this process may run on
+(``os.sched_getaffinity``), shares them among the processes of this node (DDP ranks on the CPU, or the
+parallel jobs of a sweep), subtracts the cores other processes keep busy (measured over half a second from
+``/proc/stat`` while this process sleeps; the 1-minute load average where that file is missing) and rounds
+to the nearest count, at least 1 and at most :data:`MAX_THREADS` (more threads do not speed up
+graphs of this size). ``threads: N`` sets N; ``threads: null`` leaves torch's default.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+log = logging.getLogger("gnsx")
+
+#: The most threads ``auto`` chooses.
+MAX_THREADS = 8
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity; all cores where the OS does not say)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _cpu_times(cpus: set[int]) -> tuple[float, float] | None:
+    """``(busy, total)`` jiffies of ``cpus`` since boot, from ``/proc/stat`` (None where unreadable)."""
+    try:
+        lines = Path("/proc/stat").read_text().splitlines()
+    except OSError:
+        return None
+    busy = total = 0.0
+    for line in lines:
+        name, _, rest = line.partition(" ")
+        if not (name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus):
+            continue
+        values = [float(v) for v in rest.split()]
+        idle = values[3] + (values[4] if len(values) > 4 else 0.0)  # idle + iowait
+        busy += sum(values[:8]) - idle  # guest time is already in user time
+        total += sum(values[:8])
+    return (busy, total) if total > 0 else None
+
+
+def machine_load(window_s: float = 0.5) -> float:
+    """Cores kept busy by other processes: measured over ``window_s`` on this process's cores while it
+    sleeps (``/proc/stat``), else the 1-minute load average (0 where neither is known)."""
+    try:
+        cpus = os.sched_getaffinity(0)
+    except (AttributeError, OSError):
+        cpus = set(range(os.cpu_count() or 1))
+    before = _cpu_times(cpus)
+    if before is not None:
+        time.sleep(window_s)
+        after = _cpu_times(cpus)
+        if after is not None and after[1] > before[1]:
+            return len(cpus) * (after[0] - before[0]) / (after[1] - before[1])
+    try:
+        return float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        return 0.0
+
+
+def choose_threads(processes: int = 1, cores: int | None = None, load: float | None = None) -> int:
+    """Threads per process for ``processes`` processes of this node (see the module docstring).
+
+    Args:
+        cores: available cores (default :func:`available_cores`).
+        load: other processes' load (default :func:`machine_load`).
+    """
+    cores = available_cores() if cores is None else int(cores)
+    load = machine_load() if load is None else float(load)
+    processes = max(1, int(processes))
+    share = max(1, cores // processes)
+    free = max(0.0, cores - load) / processes
+    return int(max(1, min(share, MAX_THREADS, round(free))))
+
+
+def apply_threads(setting: int | str | None, processes: int = 1) -> int:
+    """Set torch's intra-op threads from a ``threads`` setting (None, ``"auto"`` or N); log and return the
+    count torch uses."""
+    import torch
+
+    if setting is None:
+        log.info("Threads: %d (torch's default; threads=auto adapts to the load)", torch.get_num_threads())
+        return torch.get_num_threads()
+    if setting == "auto":
+        cores, load = available_cores(), machine_load()
+        count = choose_threads(processes, cores, load)
+        log.info("Threads: %d (auto: %d cores, load %.1f, %d process(es) here; threads=N to choose)",
+                 count, cores, load, processes)  # fmt: skip
+    else:
+        count = int(setting)
+    torch.set_num_threads(count)
+    return count

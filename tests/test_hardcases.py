@@ -1,0 +1,55 @@
+"""The hard-case suite (gnsx/hardcases.py) on short rollouts."""
+
+import json
+
+import numpy as np
+import pytest
+from test_simulator import make_simulator
+
+from gnsx.hardcases import CASES, drift, format_report, run_suite, water_area
+from gnsx.mpm.presets import get_preset
+
+
+def test_water_area_counts_occupied_cells():
+    square = np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(-1, 2) * 0.01 + 0.0005
+    assert water_area(square, 0.01) == pytest.approx(100 * 1e-4)
+    assert water_area(square * 0.5, 0.01) == pytest.approx(25 * 1e-4)  # squeezed: a quarter of the area
+    assert water_area(np.full((3, 2), np.nan), 0.01) == 0.0
+
+
+def test_drift_is_the_mean_displacement_over_the_last_frames():
+    positions = np.zeros((150, 2, 2))
+    positions[:, 0, 0] = np.arange(150) * 1e-4  # 1 cm per 100 frames
+    mask = np.array([True, True])
+    assert drift(positions, mask, 100) == pytest.approx(0.5e-2)
+    assert np.isnan(drift(positions[:50], mask, 100))
+
+
+def test_every_case_is_a_valid_scene_of_the_small_preset():
+    from gnsx.mpm.generate import check_scene
+    from gnsx.mpm.scenes import Scene
+
+    names = [c.name for c in CASES]
+    assert len(set(names)) == len(names)
+    for case in CASES:
+        scene = Scene.from_dict(case.scene, where=case.name)
+        if scene.blocks:
+            check_scene(scene, get_preset("small"), where=case.name)
+
+
+def test_the_suite_holds_a_wild_model_by_the_boundary(tmp_path):
+    """Random weights with a huge acceleration scale throw the water out of the box; ``held`` keeps it in."""
+    simulator = make_simulator({}, radius=0.035, acc_std=[3e-3, 3e-3], bounds=[[0.1, 0.9], [0.1, 0.9]])
+    cases = tuple(c for c in CASES if c.name in ("jet_ramp", "statics_only"))
+    report = run_suite(simulator, cases, out_dir=tmp_path, frames_scale=0.12, progress=False)
+    rows = {(r["case"], r["variant"]): r for r in report["cases"]}
+    assert set(rows) == {(c, v) for c in ("jet_ramp", "statics_only") for v in ("raw", "held")}
+    held, raw = rows["jet_ramp", "held"], rows["jet_ramp", "raw"]
+    assert held["out_max"] == 0 and held["crossings"] == 0 and held["nonfinite"] == 0
+    assert raw["out_max"] > 0 or raw["crossings"] > 0
+    assert held["truth_crossings"] == 0  # the MPM never tunnels
+    assert rows["statics_only", "held"]["water_particles"] == 0
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert len(saved["cases"]) == 4 and saved["precision"]["rms_m"]
+    assert (tmp_path / "strips" / "jet_ramp.png").stat().st_size > 0
+    assert "| jet_ramp | held |" in format_report(report)
