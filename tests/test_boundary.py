@@ -141,3 +141,16 @@ def test_a_constrained_rollout_stays_in_the_box_and_above_the_ramp(constrain):
         assert inside and crossings == 0
     else:  # the raw model is what the boundary is for
         assert not inside or crossings > 0
+
+
+def test_a_step_from_the_skin_past_a_segments_end_onto_it_is_caught():
+    """Measured on a shipped-weights rollout: a particle in the skin of a vertical ramp, just below its lower
+    end, stepped diagonally up across the line onto the segment."""
+    ramp = _ramp([0.18, 0.3], [0.18, 0.4])
+    position, types = _scene([[0.18 + 0.0495 * SPACING, 0.2991]], [ramp])
+    boundary = Boundary.from_particles(BOUNDS, position, types)
+    proposed = position.clone()
+    proposed[0] = torch.tensor([0.18 - 0.07 * SPACING, 0.3014])
+    assert boundary.count_crossings(position, proposed, types) == 1
+    result = boundary.apply(position, proposed, types != KINEMATIC_PARTICLE_ID)
+    assert boundary.count_crossings(position, result, types) == 0

@@ -167,7 +167,14 @@ class Boundary:
         lam = np.clip((start_depth - self.pushback) / travel, 0.0, 1.0)
         contact = p + lam[:, None] * (q - p)
         along = np.einsum("kd,kd->k", contact - a, tangent)
-        hit = (end_depth < self.pushback) & (along >= -self.pushback) & (along <= length + self.pushback)
+        on_segment = (along >= -self.pushback) & (along <= length + self.pushback)
+        # A step that starts in the skin beside the segment's end and crosses the line onto the segment: judge
+        # it where it crosses the line (the contact point above is its start, off the end).
+        crosses = end_depth < 0
+        lam_line = np.clip(start_depth / np.maximum(start_depth - end_depth, 1e-300), 0.0, 1.0)
+        along_line = np.einsum("kd,kd->k", p + lam_line[:, None] * (q - p) - a, tangent)
+        on_segment |= crosses & (along_line >= 0) & (along_line <= length)
+        hit = (end_depth < self.pushback) & on_segment
         target = q[hit] + ((self.pushback - end_depth[hit]) * side[hit])[:, None] * normal[hit]
         return step[hit], segment[hit], target
 
