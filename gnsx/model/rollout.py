@@ -122,7 +122,7 @@ def physics_free_baseline(
         velocity = velocity + gravity * dynamic
         # Static particles may lie outside the domain (DeepMind's ramps do not); the boundary never moves
         # them.
-        next_position = boundary.apply(position, position + velocity * dynamic, moves)
+        next_position = boundary.apply(position, position + velocity, moves)  # static velocity is 0
         velocity = next_position - position
         position = next_position
         frames.append(position)

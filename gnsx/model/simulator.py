@@ -41,7 +41,13 @@ from torch import Tensor, nn
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
 from gnsx.model.culling import hop_distance, particles_in_reach
-from gnsx.model.features import edge_features, type_scalar_feature, velocity_features, wall_features
+from gnsx.model.features import (
+    edge_features,
+    type_scalar_feature,
+    velocity_features,
+    velocity_sequence,
+    wall_features,
+)
 from gnsx.model.graph_network import EncodeProcessDecode
 from gnsx.model.neighbors import METHODS, radius_graph
 from gnsx.model.noise import random_walk_noise
@@ -369,7 +375,7 @@ class LearnedSimulator(nn.Module):
             edge_index = radius_graph(
                 position_sequence[:, -1], self.radius, batch, method=self.neighbor_search
             )
-        speed = (position_sequence[:, 1:] - position_sequence[:, :-1]).norm(dim=-1).amax(dim=1)  # [N]
+        speed = velocity_sequence(position_sequence).norm(dim=-1).amax(dim=1)  # [N]
         resting = dynamic & (speed <= self.freeze_speed)
         steps = self.config["mp_steps"]
         return resting & (hop_distance(edge_index, dynamic & ~resting, steps) > steps)
