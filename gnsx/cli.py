@@ -184,17 +184,6 @@ def _remove_bare_run_dir() -> None:
         parent.rmdir()
 
 
-def passive_omp_threads() -> None:
-    """Make torch's OpenMP threads sleep, not spin, while they wait (``OMP_WAIT_POLICY=PASSIVE``) unless the
-    environment says otherwise; must run before torch is imported (the scripts import it lazily).
-
-    Measured on this 2-core machine with other jobs running (load ~3): the training loop at 2 threads did not
-    finish 70 steps in 200 s with OpenMP's default spinning, and ran 11.3 steps/s with PASSIVE (1 thread:
-    11.2-14.5); see gnsx/threads.py.
-    """
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-
 def run_hydra(main: Callable[[], Any]) -> None:
     """Run a ``@hydra.main`` function as a script; bad input exits 2 with one line (see the module doc).
 
@@ -202,7 +191,6 @@ def run_hydra(main: Callable[[], Any]) -> None:
     """
     if debug_requested(sys.argv):
         os.environ[DEBUG_ENV] = "1"  # seen by hydra_task, and by DDP ranks that Lightning relaunches
-    passive_omp_threads()
     user_full_error = os.environ.get("HYDRA_FULL_ERROR", "") not in ("", "0")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra re-raises instead of printing its multi-line report
     if _debug_env() or user_full_error:

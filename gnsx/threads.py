@@ -6,9 +6,11 @@ it waits for is not scheduled. Measured on this repository's 2-core machine with
 demo trained at 1.8 steps/s with torch's default of 2 threads and at 8.8 steps/s with 1 thread (issue 11);
 ``python -m gnsx.throughput --data data/small --batch-size 2`` at load ~3 ran 11.2-14.5 steps/s with 1
 thread, and with 2 threads did not finish 70 steps in 200 s. A run on an idle machine loses by the same rule
-only what the idle core would have added (~1.6x at most here). Load that arrives after the choice is
-handled by ``OMP_WAIT_POLICY=PASSIVE``, which the scripts set (:func:`gnsx.cli.passive_omp_threads`):
-waiting threads sleep instead of spinning; 2 threads at load ~3 then ran 11.3 steps/s.
+only what the idle core would have added (~1.6x at most here). ``OMP_WAIT_POLICY=PASSIVE`` (waiting threads
+sleep instead of spinning) ran 2 threads at 11.3 steps/s at load ~3, but on an idle machine it halved the
+training loop (``python -m gnsx.throughput --data data/small --batch-size 2 --threads 2 --steps 150``:
+6.7 steps/s against 14.1 with OpenMP's default), so gnsx does not set it; load that arrives after the choice
+is not handled (set ``threads=1`` or ``OMP_WAIT_POLICY=PASSIVE`` yourself on a machine you share).
 
 ``threads: auto`` (the default of ``train.py``) therefore takes the cores this process may run on
 (``os.sched_getaffinity``), shares them among the processes of this node (DDP ranks on the CPU, or the
