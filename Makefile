@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -47,6 +47,9 @@ format: install ## Apply ruff formatting and fixes
 
 data: install ## Generate the small default preset into data/small
 	$(PY) -m gnsx.data generate --preset small --out $(DATA)
+
+validate-mpm: install ## MPM ground truth vs Martin & Moyce, hydrostatics, rest, impacts; before/after table + figure (~20 min)
+	$(PY) -m gnsx.mpm.validate --out outputs/validate-mpm $(ARGS)
 
 data-waterramps: install ## Generate the full WaterRamps-like preset (1000/100/100 x 601 frames; hours)
 	$(PY) -m gnsx.data generate --preset waterramps --out data/waterramps
@@ -106,7 +109,7 @@ simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.c
 hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scenes, 10x horizon): MPM vs raw vs held model
 	$(PY) -m gnsx.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)
 
-bench: install ## ms/frame and peak memory, simplified vs original GNS at WaterRamps size (ARGS='--device cuda --threads 1')
+bench: install ## Scaling benchmark: ms/frame, memory, GFLOP/s vs particles (1k-100k), both models, inference + training; JSON + plot in outputs/bench (ARGS='--threads 2', '--device cuda', '--particles 2300': one size)
 	$(PY) -m gnsx.benchmark $(ARGS)
 
 bench-cull: install ## ms/frame with and without exact culling, 5 scenes at WaterRamps size and 10x (ARGS='--threads 2 --models simplified original')

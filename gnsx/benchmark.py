@@ -16,9 +16,12 @@ Memory:
   freed heap to the OS so that earlier work does not hide the increase; memory the allocator still keeps is
   reused without showing up, so read it as a lower bound. Elsewhere ``peak_memory_mb`` is None.
 
-CLI (``make bench``): ``python -m gnsx.benchmark`` times the simplified and the original GNS (untrained
-weights: speed does not depend on them) on the same WaterRamps-sized packed scene, one after the other in
-one run, and prints both with their ratio.
+CLI (``make bench``): ``python -m gnsx.benchmark`` runs the scaling benchmark (:mod:`gnsx.scaling`): ms/frame,
+memory, FLOP/s of inference and a training step of both models at 1k to 100k particles (1M on a GPU), next to
+the matmul peak, with a table, JSON and a plot (``docs/benchmark.md``). ``--particles N`` times the simplified
+and the original GNS (untrained weights: speed does not depend on them) on one packed scene of N particles
+instead, one after the other, and prints both with their ratio (the box grows past WaterRamps' when the scene
+needs it).
 
 Culling (``make bench-cull``): ``python -m gnsx.benchmark --cull`` times frames with and without exact
 culling (:mod:`gnsx.model.culling`), interleaved frame by frame in one run, on the scenes of
@@ -252,13 +255,18 @@ def compare_models(
     warmup: int = 3,
     repeats: int = 20,
 ) -> dict[str, dict]:
-    """:func:`measure_inference` of each named model on the same packed scene (history padded per model)."""
+    """:func:`measure_inference` of each named model on the same packed scene (history padded per model), in
+    WaterRamps' box or, for more particles than it holds, a square box of side
+    :func:`gnsx.scaling.scaling_side`."""
+    # WaterRamps' box, grown (side proportional to sqrt(N) * spacing) for scenes it cannot hold.
+    from gnsx.scaling import scaling_side
+
+    side = scaling_side(num_particles, spacing)
+    bounds = WATERRAMPS["bounds"] if side <= 0.8 else [[0.1, 0.1 + side]] * 2
     results = {}
     for name in names:
-        simulator = build_model(name, radius).to(device)
-        sequence, particle_type = packed_scene(
-            num_particles, spacing, WATERRAMPS["bounds"], simulator.history
-        )
+        simulator = build_model(name, radius, bounds=bounds).to(device)
+        sequence, particle_type = packed_scene(num_particles, spacing, bounds, simulator.history)
         result = measure_inference(simulator, sequence, particle_type, warmup=warmup, repeats=repeats)
         results[name] = result | {"parameters": simulator.num_parameters()}
         del simulator
@@ -624,21 +632,72 @@ def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m gnsx.benchmark",
-        description="ms/frame and peak memory of the simplified and original GNS at WaterRamps size; with "
-        "--cull, ms/frame with and without exact culling on scenes where it pays (make bench-cull).",
+        description="Scaling benchmark (default, make bench): ms/frame, memory and GFLOP/s of inference "
+        "and training of the simplified and original GNS from 1k to 100k particles (1M on a GPU), with the "
+        "matmul peak, a table, JSON and a plot. --particles N: both models on one packed scene of N "
+        "particles. --cull: ms/frame with and without exact culling on scenes where it pays "
+        "(make bench-cull).",
     )
     parser.add_argument("--models", nargs="+", default=None, choices=sorted(MODELS),
                         help="default: both (simplified only with --cull)")  # fmt: skip
-    parser.add_argument("--particles", type=int, default=WATERRAMPS["particles"])
+    parser.add_argument(
+        "--particles",
+        type=int,
+        default=None,
+        help="one size, both models, packed scene with ramps (former default: 2300)",
+    )
     parser.add_argument("--spacing", type=float, default=WATERRAMPS["spacing"])
     parser.add_argument("--radius", type=float, default=WATERRAMPS["radius"])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--warmup", type=int, default=None, help="untimed frames (default 3; 2 with --cull)")
     parser.add_argument(
-        "--repeats", type=int, default=None, help="timed frames (default 20; 7 per mode with --cull)"
+        "--warmup", type=int, default=None, help="untimed frames (default 2; 3 with --particles)"
+    )
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed frames (default 20; scaling: at most 20 inference / 10 training, "
+        "fewer at large sizes; 7 per mode with --cull)",
     )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
-    parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="write the results here (scaling: outputs/bench/scaling_<device>.json)",
+    )
+    scaling = parser.add_argument_group("scaling (the default mode; docs/benchmark.md)")
+    scaling.add_argument(
+        "--sizes",
+        nargs="+",
+        type=int,
+        default=None,
+        help="particles per scene (default 1000 2300 10000 100000; 1000000 on cuda)",
+    )
+    scaling.add_argument(
+        "--max-seconds",
+        type=float,
+        default=60.0,
+        help="time budget per measurement; a size predicted past it is skipped",
+    )
+    scaling.add_argument(
+        "--max-memory-gb",
+        type=float,
+        default=None,
+        help="memory budget per measurement (default: half the CPU's available "
+        "memory, or 85%% of the GPU's free memory)",
+    )
+    scaling.add_argument("--batch-size", type=int, default=2, help="scenes per training step (trainer: 2)")
+    scaling.add_argument("--no-training", action="store_true", help="inference only")
+    scaling.add_argument("--plot", type=Path, default=None, help="PNG (default: the JSON's path, .png)")
+    scaling.add_argument("--matmul-size", type=int, default=None, help="matmul peak's n (2048 CPU, 8192 GPU)")
+    scaling.add_argument(
+        "--rollout-memory",
+        action="store_true",
+        help="also measure a rollout's peak memory at --rollout-frames",
+    )
+    scaling.add_argument("--rollout-frames", nargs="+", type=int, default=[50, 500])
+    scaling.add_argument("--rollout-particles", type=int, default=1000)
     cull = parser.add_argument_group("culling (--cull)")
     cull.add_argument("--cull", action="store_true", help="time culling on/off (interleaved) per scene")
     cull.add_argument("--scenes", nargs="+", default=list(CULL_SCENES), choices=list(CULL_SCENES))
@@ -674,15 +733,56 @@ def main(argv: list[str] | None = None) -> int:
         threads = torch.get_num_threads()
         print(f"ms/frame: median of interleaved frames, graph build included; {threads} torch threads")
         print(format_culling(results))
-    else:
+    elif args.particles is not None:
         results = compare_models(
             args.models or ["simplified", "original"], args.particles, args.spacing, args.radius, args.device,
             3 if args.warmup is None else args.warmup, 20 if args.repeats is None else args.repeats,
         )  # fmt: skip
         print(format_results(results))
+    else:
+        return _scaling_main(args, parser)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+def _scaling_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The scaling mode of :func:`main` (:mod:`gnsx.scaling`)."""
+    from gnsx import scaling
+
+    device = torch.device(args.device)
+    extra = scaling.CUDA_EXTRA_SIZES if device.type == "cuda" else ()
+    sizes = args.sizes or [*scaling.DEFAULT_SIZES, *extra]
+    checks = [("--sizes", sizes, 1), ("--batch-size", [args.batch_size], 1),
+              ("--rollout-frames", args.rollout_frames, 1),
+              ("--rollout-particles", [args.rollout_particles], 1),
+              ("--repeats", [args.repeats or 1], 1), ("--warmup", [args.warmup or 0], 0)]  # fmt: skip
+    for flag, values, low in checks:
+        if min(values) < low:
+            raise ValueError(f"{flag}: must be >= {low}, got {min(values)}")
+    json_path = args.json or scaling.default_json_path(args.device)
+    results = scaling.run_scaling(
+        args.models or ["simplified", "original"], sizes, args.device,
+        2 if args.warmup is None else args.warmup, args.repeats, args.max_seconds,
+        None if args.max_memory_gb is None else 1000 * args.max_memory_gb, args.batch_size,
+        not args.no_training, args.radius, args.spacing, args.matmul_size,
+        log=lambda line: print(line, file=sys.stderr, flush=True),
+    )  # fmt: skip
+    if args.rollout_memory:
+        from gnsx.memtrack import hold_still, rollout_growth, rollout_memory
+
+        name = (args.models or ["simplified"])[0]
+        history = MODELS[name].get("history", 1)
+        sequence, particle_type, bounds = scaling.scaling_scene(args.rollout_particles, history, args.spacing)
+        simulator = hold_still(build_model(name, args.radius, bounds=bounds)).to(args.device)
+        rows = rollout_memory(simulator, sequence, particle_type, args.rollout_frames)
+        results["rollout_memory"] = {"model": name, "rows": rows, "growth": rollout_growth(rows)}
+    print(scaling.format_scaling(results))
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(results, indent=2))
+    plot = scaling.plot_scaling(results, args.plot or json_path.with_suffix(".png"))
+    print(f"wrote {json_path} and {plot}")
     return 0
 
 

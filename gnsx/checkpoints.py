@@ -27,7 +27,7 @@ from gnsx.model.simulator import LearnedSimulator
 from gnsx.system import GNSSystem
 
 #: Model settings that change behaviour at run time only (not the weights, not the training).
-RUNTIME_KEYS = frozenset({"neighbor_search", "cull", "freeze_speed"})
+RUNTIME_KEYS = frozenset({"neighbor_search", "cull", "freeze_speed", "compile"})
 #: The checkpoint keys gnsx needs.
 REQUIRED_KEYS = ("state_dict", "hyper_parameters")
 #: A model applied to data whose connectivity radius differs by more than this factor is refused.

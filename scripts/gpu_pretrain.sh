@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One prepared GPU session (the `device` tool's H100/H200; figures in README "Decisions"): training throughput
 # of the code before and after the fast path, then a time-budgeted pretrain of the small preset with 400
-# training trajectories. Everything it measures lands in $OUT (at most 8 files). Needs, carried:
+# training trajectories, after the scaling benchmark (scripts/gpu_bench.sh). Everything it measures lands in
+# $OUT (at most 8 files). Needs, carried:
 #   .whl  hydra-core, omegaconf, antlr4 (pip wheel), POT, crc32c, tfrecord wheels for the image's Python 3.12
 #   .old  the gnsx package of the commit to compare with (git worktree add /tmp/old e4609fc && cp -r
 #         /tmp/old/gnsx .old/gnsx); SKIP_BENCH=1 skips the comparison.
@@ -20,6 +21,9 @@ else
   nvidia-smi --query-gpu=name,memory.total --format=csv | tee "$OUT/gpu.txt"
 fi
 export PYTHONPATH=${PYTHONPATH:+$PYTHONPATH:}$PWD
+# The scaling benchmark first (3 files in $OUT, a few minutes; docs/benchmark.md); its failure does not stop
+# the pretrain. SKIP_SCALING=1 skips it.
+[ "${SKIP_SCALING:-0}" = 1 ] || GNSX_WHEELS_INSTALLED=1 bash scripts/gpu_bench.sh || echo "scaling benchmark failed"
 DATA=/tmp/gnsx_data/small_400
 rm -rf "$DATA"
 start=$(date +%s)

@@ -17,14 +17,7 @@ from gnsx.mpm.presets import get_preset
 from gnsx.mpm.scenes import Scene, WaterBlock, scene_particles
 from gnsx.mpm.solver import MLSMPMSolver, SolverSettings
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # Results must not depend on the machine's core count; workers run on one thread too.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _block(lower, upper, spacing, rng, jitter=0.3):
@@ -335,21 +328,23 @@ def test_split_items_depend_only_on_seed_split_and_index():
 
 
 def test_generate_dataset_writes_a_readable_dataset_independent_of_workers(tmp_path):
-    preset = _tiny_preset(num_frames=12)
+    # 30 frames: in 12 a block in free flight may not accelerate sideways at all (acc_std 0 is refused).
+    preset = _tiny_preset(num_frames=30)
     one = generate_dataset(tmp_path / "one", preset, seed=3, workers=1, progress=False)
     two = generate_dataset(tmp_path / "two", preset, seed=3, workers=2, progress=False)
     meta = json.loads((one / "metadata.json").read_text())
     assert meta["bounds"] == [[0.1, 0.9], [0.1, 0.9]]
-    assert meta["sequence_length"] == 11 and meta["dim"] == 2 and meta["dt"] == 0.0025
+    assert meta["sequence_length"] == 29 and meta["dim"] == 2 and meta["dt"] == 0.0025
     assert meta["default_connectivity_radius"] == preset.default_connectivity_radius
     assert all(len(meta[k]) == 2 and min(meta[k]) > 0 for k in ("vel_std", "acc_std"))
     assert meta["gnsx"]["preset"] == "small" and meta["gnsx"]["seed"] == 3
-    assert meta["gnsx"]["solver"]["grid"] == 32 and meta["gnsx"]["solver"]["substeps"] == 10
+    assert meta["gnsx"]["solver"]["grid"] == 32 and meta["gnsx"]["solver"]["substeps"] == 13
+    assert meta["gnsx"]["solver"]["stiffness"] == 2500 and meta["gnsx"]["solver"]["viscosity"] > 0
     for split, count in preset.trajectories.items():
         a, b = SplitReader(one, split), SplitReader(two, split)
         assert len(a) == len(b) == count
         for i in range(count):
-            assert a[i].key == i and a[i].num_frames == 12
+            assert a[i].key == i and a[i].num_frames == 30
             np.testing.assert_array_equal(a[i].position, b[i].position)
             np.testing.assert_array_equal(a[i].particle_type, b[i].particle_type)
     assert json.loads((two / "metadata.json").read_text())["vel_std"] == meta["vel_std"]

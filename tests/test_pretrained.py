@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
 from gnsx.mpm.generate import simulate_split_item
-from gnsx.mpm.presets import get_preset
+from gnsx.mpm.presets import Preset
 from gnsx.scoring import score_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,9 +64,10 @@ def test_shipped_weights_reproduce_their_test_rollout(shipped):
     results, config = shipped
     simulator = load_simulator(SHIPPED / "model.ckpt")
     metadata = Metadata.load(SHIPPED / "metadata.json")
-    trajectory = simulate_split_item(
-        get_preset(config.data.preset), int(config.data.generate_seed), "test", 0
-    )
+    # The data the weights were scored on, regenerated with the solver its metadata records (the presets'
+    # solver has changed since: issue 13).
+    preset = Preset.from_dict(metadata.extra["gnsx"]["preset_settings"])
+    trajectory = simulate_split_item(preset, int(config.data.generate_seed), "test", 0)
     row = score_trajectory(
         simulator,
         torch.as_tensor(trajectory.position),

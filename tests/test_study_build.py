@@ -80,17 +80,6 @@ def test_named_sources_and_chosen_methods(tmp_path):
     assert {pair.methods for pair in study.pairs} == {("ours", TRUTH)}
 
 
-@pytest.fixture
-def one_thread():
-    """Torch on one thread for the test (tiny models: threads only contend on a shared machine)."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_rollouts_of_evaluate_py(tiny_dataset, tmp_path, one_thread):
     """The study builds from what evaluate.py writes: one scene per trajectory, methods from its labels."""
     from test_evaluate import ORIGINAL_TINY, TINY, save_tiny_checkpoint

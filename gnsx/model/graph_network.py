@@ -12,16 +12,19 @@ backward, for both model configs. What makes it fast (CPU profile of a training 
 
 - **No per-edge concatenation.** phi_e's first layer is linear, so on ``[e_ij, v_i, v_j]`` it splits as
   ``W_e e_ij + (W_r v_i + b) + W_s v_j``: the node terms are projected once per node (N x H instead of
-  E x H work) and gathered per edge with ``index_select``; the edge term is accumulated in place with
-  ``addmm_``. phi_v's first layer splits the same way over ``[sum_j m_ij, v_i]``. The weights stay one
-  ``Linear(3L, H)`` / ``Linear(2L, H)``, so checkpoints of every earlier version load unchanged.
-- **Sum aggregation by ``index_add_``** over receiver-sorted edges (the radius graph sorts them): its
-  backward is an ``index_select``, where the generic scatter of PyG's ``MessagePassing`` broadcasts the index
-  to ``[E, L]`` and backpropagates through ``gather`` (2.5 ms per step and layer in the profile, more than the
-  layer's forward). ``torch.segment_reduce`` and a CSR sparse product were measured too and were 2-2.5x
-  slower forward + backward on this CPU.
-- No Python message-passing framework between the layers: one ``index_select`` per gathered node term and
-  one ``index_add_`` per layer, nothing else per edge but the MLPs.
+  E x H work) and gathered and summed per edge in one pass (:func:`gnsx.model.edge_ops.gather_sum`); the
+  edge term is accumulated in place with ``addmm_``. phi_v's first layer splits the same way over
+  ``[sum_j m_ij, v_i]``. The weights stay one ``Linear(3L, H)`` / ``Linear(2L, H)``, so checkpoints of every
+  earlier version load unchanged.
+- **Sum aggregation as a segment sum** over receiver-sorted edges (the radius graph and the culling plan
+  sort them; :func:`gnsx.model.edge_ops.segment_sum`, ``index_add_`` for edges in any other order): one
+  sequential read, and its backward is an ``index_select``, where the generic scatter of PyG's
+  ``MessagePassing`` broadcasts the index to ``[E, L]`` and backpropagates through ``gather`` (2.5 ms per
+  step and layer in the profile, more than the layer's forward). ``torch.segment_reduce`` and a CSR sparse
+  product were measured too and were 2-2.5x slower forward + backward on this CPU.
+- No Python message-passing framework between the layers: one gather-sum and one segment sum per layer,
+  nothing else per edge but the MLPs. ``docs/speed.md`` has the profile, the matmul floor and what did not
+  pay (edge blocks, a hand-written LayerNorm); ``compile_blocks`` (``model.compile``) fuses the rest.
 
 Exact culling (``forward(..., decode=mask)``, :mod:`gnsx.model.culling`) is an option of this same path, not
 a second model: the nodes are renumbered by hop distance from the decoded ones, so each step updates a prefix
@@ -35,6 +38,7 @@ import torch
 from torch import Tensor, nn
 
 from gnsx.model.culling import plan_culling
+from gnsx.model.edge_ops import gather_sum, receiver_offsets, segment_sum
 
 
 class MLP(nn.Sequential):
@@ -106,25 +110,32 @@ class InteractionNetwork(nn.Module):
         self.node_mlp = MLP(2 * latent_size, mlp_hidden_size, latent_size, mlp_hidden_layers, layer_norm)
 
     def forward(
-        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, num_receivers: int | None = None
+        self,
+        x: Tensor,
+        edge_index: Tensor,
+        edge_attr: Tensor,
+        num_receivers: int | None = None,
+        offsets: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         senders, receivers = edge_index[0], edge_index[1]
         latent = self.latent_size
         # Culling (gnsx.model.culling): only the first num_receivers nodes are updated; every receiver is
         # below it, senders may be any row. Slices are views, so the full graph pays nothing for this.
         receiver_x = x if num_receivers is None else x[:num_receivers]  # [R, L]
+        if offsets is None:  # EncodeProcessDecode computes them once for all its steps
+            offsets = receiver_offsets(receivers, receiver_x.shape[0])
         first = self.edge_mlp.first
         weight_edge, weight_receiver, weight_sender = first.weight.split(latent, dim=1)  # [H, L] each
         # phi_e's first layer, node parts once per node; the bias joins the R x H receiver term rather than
         # being broadcast over the E edges.
         receiver_term = torch.addmm(first.bias, receiver_x, weight_receiver.t())  # [R, H]
         sender_term = x @ weight_sender.t()  # [N, H]
-        hidden = receiver_term.index_select(0, receivers) + sender_term.index_select(0, senders)  # [E, H]
+        hidden = gather_sum(receiver_term, sender_term, receivers, senders, offsets)  # [E, H]
         # In place: one pass over the E x H output instead of a separate matmul result and add.
         hidden.addmm_(edge_attr, weight_edge.t())
         messages = self.edge_mlp.after_first(hidden)  # [E, L]
         # Sum over each receiver's incoming edges; backward is messages.grad = grad.index_select(receivers).
-        aggregated = x.new_zeros(receiver_x.shape[0], messages.shape[1]).index_add_(0, receivers, messages)
+        aggregated = segment_sum(messages, receivers, offsets, receiver_x.shape[0])  # [R, L]
         node_first = self.node_mlp.first
         weight_aggregated, weight_node = node_first.weight.split(latent, dim=1)
         node_hidden = torch.addmm(node_first.bias, receiver_x, weight_node.t()).addmm_(
@@ -181,6 +192,17 @@ class EncodeProcessDecode(nn.Module):
         )
         self.decoder = MLP(latent_size, mlp_hidden_size, out_size, mlp_hidden_layers, layer_norm=False)
 
+    def compile_blocks(self) -> None:
+        """``torch.compile`` the encoders, every message-passing step and the decoder, in place.
+
+        Per block rather than the whole forward: the culling plan's Python ints and data-dependent sizes stay
+        outside the compiled code, and the steps share one compiled graph (same code, parameters as inputs).
+        ``dynamic=True`` because the node and edge counts change every frame; without it every new size
+        recompiles. Parameters and their names are unchanged (checkpoints load either way).
+        """
+        for block in (self.node_encoder, self.edge_encoder, *self.processor, self.decoder):
+            block.compile(dynamic=True)
+
     def forward(
         self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor | None = None
     ) -> Tensor:
@@ -188,8 +210,9 @@ class EncodeProcessDecode(nn.Module):
             return self._culled(x, edge_index, edge_attr, decode)
         node_latent = self.node_encoder(x)
         edge_latent = self.edge_encoder(edge_attr)
+        offsets = receiver_offsets(edge_index[1], x.shape[0])
         for step in self.processor:
-            node_latent, edge_latent = step(node_latent, edge_index, edge_latent)
+            node_latent, edge_latent = step(node_latent, edge_index, edge_latent, offsets=offsets)
         return self.decoder(node_latent)
 
     def _culled(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor) -> Tensor:
@@ -198,6 +221,8 @@ class EncodeProcessDecode(nn.Module):
         plan = plan_culling(edge_index, decode, len(self.processor))
         node_latent = self.node_encoder(x.index_select(0, plan.nodes))  # [n_M, L]
         edge_latent = self.edge_encoder(edge_attr.index_select(0, plan.edges))  # [e_{M-1}, L]
+        # Row pointer of the first step's receivers; the later steps' edges are prefixes of it.
+        offsets = receiver_offsets(plan.edge_index[1], plan.node_counts[-2] if self.processor else 0)
         for step, hops_left in zip(self.processor, range(len(self.processor) - 1, -1, -1)):
             # Step k updates the nodes within M - k hops, from the edges into them (prefixes of the plan).
             num_edges = plan.edge_counts[hops_left]
@@ -206,6 +231,7 @@ class EncodeProcessDecode(nn.Module):
                 plan.edge_index[:, :num_edges],
                 edge_latent[:num_edges],
                 num_receivers=plan.node_counts[hops_left],
+                offsets=offsets,
             )
         decoded = self.decoder(node_latent[: plan.num_decoded])  # [n_0, out]
         out = decoded.new_zeros(x.shape[0], decoded.shape[1])

@@ -76,6 +76,9 @@ class LearnedSimulator(nn.Module):
         cull: exact culling (module docstring); also settable on the model (``simulator.cull = False``).
         freeze_speed: approximate freezing of particles at rest (module docstring, :meth:`frozen_particles`);
             None (off) or a speed > 0 in data units per frame; also settable on the model.
+        compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
+            C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes
+            speed only, not the results (to float rounding) nor the parameters; docs/speed.md has figures.
 
     Attributes:
         input_frames: ``history + 1``, the number of position frames :meth:`forward` reads.
@@ -107,6 +110,7 @@ class LearnedSimulator(nn.Module):
         neighbor_search: str = "auto",
         cull: bool = True,
         freeze_speed: float | None = None,
+        compile: bool = False,
     ):
         super().__init__()
         self.config = {
@@ -131,6 +135,7 @@ class LearnedSimulator(nn.Module):
             "neighbor_search": str(neighbor_search),
             "cull": bool(cull),
             "freeze_speed": None if freeze_speed is None else float(freeze_speed),
+            "compile": bool(compile),
         }
         self._check_config()
         cfg = self.config
@@ -166,6 +171,8 @@ class LearnedSimulator(nn.Module):
             edge_residual=cfg["edge_residual"],
             layer_norm=cfg["layer_norm"],
         )
+        if cfg["compile"]:
+            self.network.compile_blocks()
 
     def _check_config(self) -> None:
         cfg = self.config
