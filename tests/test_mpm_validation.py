@@ -80,7 +80,7 @@ def test_dam_break_front_lies_between_the_experiment_and_the_shallow_water_bound
     """Small preset (coarse: 9 particles across the column): the front advances monotonically, never beyond
     Ritter's inviscid bound 1 + 2T, and within 25% of Martin & Moyce after T = 1."""
     preset = get_preset("small")
-    result = dam_break(preset.solver_settings(), preset.particle_spacing, t_max=2.5)
+    result = dam_break(preset.solver_settings(), preset.particle_spacing, width=0.15, t_max=2.5)
     T, Z = np.array(result["T"]), np.array(result["Z"])
     assert (np.diff(Z) >= -1e-3).all()
     assert (Z <= 1 + 2 * T + 0.05).all()
