@@ -102,6 +102,26 @@ def _reset_peak_rss() -> bool:
     return _proc_status_kb("VmHWM") is not None
 
 
+def memory_start(device: torch.device) -> tuple[str, int | None]:
+    """Start a peak-memory measurement (module docstring): ``(measure, rss_before)``, measure one of
+    ``"cuda_max_allocated"``, ``"cpu_peak_rss_increase"``, ``"unavailable"``."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+        torch.cuda.reset_peak_memory_stats(device)
+        return "cuda_max_allocated", None
+    rss = _proc_status_kb("VmRSS") if _reset_peak_rss() else None
+    return ("cpu_peak_rss_increase", rss) if rss is not None else ("unavailable", None)
+
+
+def memory_peak(device: torch.device, measure: str, rss_before: int | None) -> float | None:
+    """The peak since :func:`memory_start`, MB (None where it cannot be measured)."""
+    if measure == "cuda_max_allocated":
+        return torch.cuda.max_memory_allocated(device) / _MB
+    if measure == "cpu_peak_rss_increase":
+        return max(0, _proc_status_kb("VmHWM") - rss_before) * 1024 / _MB
+    return None
+
+
 @torch.inference_mode()
 def measure_inference(
     simulator: LearnedSimulator,
@@ -138,13 +158,7 @@ def measure_inference(
         if cuda:
             torch.cuda.synchronize(device)
 
-    if cuda:
-        sync()
-        torch.cuda.reset_peak_memory_stats(device)
-        measure = "cuda_max_allocated"
-    else:
-        rss_before = _proc_status_kb("VmRSS") if _reset_peak_rss() else None
-        measure = "cpu_peak_rss_increase" if rss_before is not None else "unavailable"
+    measure, rss_before = memory_start(device)
     for _ in range(warmup):
         simulator.predict_positions(position_sequence, particle_type)
     sync()
@@ -154,12 +168,7 @@ def measure_inference(
         simulator.predict_positions(position_sequence, particle_type)
         sync()
         times.append(time.perf_counter() - start)
-    if cuda:
-        peak = torch.cuda.max_memory_allocated(device) / _MB
-    elif measure == "cpu_peak_rss_increase":
-        peak = max(0, _proc_status_kb("VmHWM") - rss_before) * 1024 / _MB
-    else:
-        peak = None
+    peak = memory_peak(device, measure, rss_before)
     # Edge count (after the measurement, so it does not warm the allocator): what the network works on.
     num_edges = int(simulator.build_graph(position_sequence, particle_type)[1].shape[1])
     return {

@@ -44,10 +44,10 @@ from gnsx.benchmark import (
     MODELS,
     WATERRAMPS,
     _markdown,
-    _proc_status_kb,
-    _reset_peak_rss,
     build_model,
     measure_inference,
+    memory_peak,
+    memory_start,
     packed_scene,
 )
 from gnsx.constants import KINEMATIC_PARTICLE_ID
@@ -119,24 +119,6 @@ def training_batch(num_particles: int, history: int, batch_size: int, spacing: f
 
 
 # -- measurements -----------------------------------------------------------------------------------------
-def _memory_start(device: torch.device) -> tuple[str, int | None]:
-    """Start a peak-memory measurement as :func:`gnsx.benchmark.measure_inference` does."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-        torch.cuda.reset_peak_memory_stats(device)
-        return "cuda_max_allocated", None
-    rss = _proc_status_kb("VmRSS") if _reset_peak_rss() else None
-    return ("cpu_peak_rss_increase", rss) if rss is not None else ("unavailable", None)
-
-
-def _memory_peak(device: torch.device, measure: str, rss_before: int | None) -> float | None:
-    if measure == "cuda_max_allocated":
-        return torch.cuda.max_memory_allocated(device) / _MB
-    if measure == "cpu_peak_rss_increase":
-        return max(0, _proc_status_kb("VmHWM") - rss_before) * 1024 / _MB
-    return None
-
-
 def build_system(name: str, bounds: Sequence[Sequence[float]], radius: float = WATERRAMPS["radius"]):
     """An untrained :class:`gnsx.system.GNSSystem` of a :data:`gnsx.benchmark.MODELS` config with WaterRamps'
     statistics in ``bounds``."""
@@ -187,7 +169,7 @@ def measure_training(system, batch, warmup: int = 2, repeats: int = 10) -> dict:
         if device.type == "cuda":
             torch.cuda.synchronize(device)
 
-    measure, rss_before = _memory_start(device)
+    measure, rss_before = memory_start(device)
     for _ in range(warmup):
         training_step(system, batch, optimizer, scheduler)
     sync()
@@ -197,7 +179,7 @@ def measure_training(system, batch, warmup: int = 2, repeats: int = 10) -> dict:
         training_step(system, batch, optimizer, scheduler)
         sync()
         times.append(time.perf_counter() - start)
-    peak = _memory_peak(device, measure, rss_before)
+    peak = memory_peak(device, measure, rss_before)
     with torch.no_grad():
         graph = system.simulator.build_graph(batch.position_sequence, batch.particle_type, batch.batch)
     return {

@@ -58,18 +58,18 @@ def initial_state(scene: Scene, preset: Preset, seed: int = 0) -> tuple[np.ndarr
     return position, velocity, particle_type
 
 
-def run_scene(
-    scene: Scene, preset: Preset, seed: int, device: str | torch.device = "cpu"
-) -> tuple[Trajectory, MLSMPMSolver]:
-    """Simulate ``scene`` with ``preset``'s solver and return the trajectory and the finished solver.
+def scene_solver(
+    scene: Scene, preset: Preset, seed: int = 0, device: str | torch.device = "cpu"
+) -> tuple[MLSMPMSolver, np.ndarray, np.ndarray]:
+    """The preset's solver holding the scene's water at frame 0 (the scene is checked first).
 
-    The solver is returned for its diagnostics (``J``, ``ramp_corrections``, ``wall_clamps``).
-    See :func:`simulate_scene` for the arguments and the trajectory layout.
+    Returns:
+        The solver, and the scene's ``position [N, 2]`` float32 and ``particle_type [N]`` of
+        :func:`initial_state` (water first, then the ramps the solver holds as segments).
     """
     check_scene(scene, preset)
     initial_position, velocity, particle_type = initial_state(scene, preset, seed)
     water = particle_type == WATER_PARTICLE_ID
-    ramps = initial_position[~water]
     solver = MLSMPMSolver(
         initial_position[water],
         velocity[water],
@@ -78,6 +78,19 @@ def run_scene(
         preset.solver_settings(),
         device=device,
     )
+    return solver, initial_position, particle_type
+
+
+def run_scene(
+    scene: Scene, preset: Preset, seed: int, device: str | torch.device = "cpu"
+) -> tuple[Trajectory, MLSMPMSolver]:
+    """Simulate ``scene`` with ``preset``'s solver and return the trajectory and the finished solver.
+
+    The solver is returned for its diagnostics (``J``, ``ramp_corrections``, ``wall_clamps``).
+    See :func:`simulate_scene` for the arguments and the trajectory layout.
+    """
+    solver, initial_position, particle_type = scene_solver(scene, preset, seed, device)
+    ramps = initial_position[particle_type != WATER_PARTICLE_ID]
     water_position = solver.run(preset.num_frames)  # [T, N_water, 2] float32
     # Ramps are static: the same positions in every frame, after the water (as scene_particles orders them).
     ramp_position = np.broadcast_to(ramps.astype(np.float32), (preset.num_frames, *ramps.shape))

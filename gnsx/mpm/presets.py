@@ -151,7 +151,7 @@ class Preset:
         unknown = sorted(set(d) - fields)
         if unknown:
             raise ValueError(f"preset record: unknown field(s) {unknown}")
-        values = {**SOLVER_BEFORE_ISSUE_13, **d} if "density_relaxation" not in d else dict(d)
+        values = {**SOLVER_BEFORE_ISSUE_13, **d}
         for key, value in values.items():
             if isinstance(value, list):
                 values[key] = tuple(value)

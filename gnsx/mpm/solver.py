@@ -76,7 +76,7 @@ class SolverSettings:
             particles (so a model sees them at WaterRamps' radius 0.015), and the grid colliders alone
             still stop every particle in the tests.
         density_relaxation: relaxation time, s, of the volume ratio ``J`` towards the one the particles'
-            density implies (0: off, mpm88's plain ``J``). See :meth:`MLSMPMSolver._density_volume_ratio`.
+            density implies (0: off, mpm88's plain ``J``). See :meth:`MLSMPMSolver._volume_correction`.
         viscosity: dynamic viscosity mu, Pa s (kg/s in 2D), of the stress ``mu (grad v + grad v^T)``
             (0: inviscid, as mpm88).
         dtype: ``"float32"`` or ``"float64"``.

@@ -37,7 +37,8 @@ from gnsx.constants import WATER_PARTICLE_ID
 from gnsx.data.metadata import compute_statistics
 from gnsx.data.trajectory import Trajectory
 from gnsx.errors import DataError
-from gnsx.mpm.presets import Preset
+from gnsx.mpm.generate import scene_solver
+from gnsx.mpm.presets import SOLVER_BEFORE_ISSUE_13, Preset
 from gnsx.mpm.scenes import Scene, WaterBlock, sample_scene, water_particles
 from gnsx.mpm.solver import MLSMPMSolver, SolverSettings
 
@@ -192,21 +193,12 @@ def sampled_scenes(preset: Preset, count: int, seed: int = 1234, progress=None) 
         per-scene rows (``min_J``, ``max_speed``, ``ramp_corrections``, ``wall_clamps``, ``seconds``) and
         their extremes; ``ms_per_substep`` is the median wall time of a substep (one thread).
     """
-    from gnsx.mpm.generate import initial_state  # local: generate imports this package's solver only
-
     rng = np.random.default_rng(seed)
     rows, trajectories = [], []
     for i in range(count):
         scene = sample_scene(rng, preset)
-        position, velocity, particle_type = initial_state(scene, preset, seed=seed + i)
-        water = particle_type == WATER_PARTICLE_ID
-        solver = MLSMPMSolver(
-            position[water],
-            velocity[water],
-            scene.ramp_array(),
-            preset.particle_spacing,
-            preset.solver_settings(),
-        )
+        solver = scene_solver(scene, preset, seed=seed + i)[0]
+        n = solver.num_particles
         min_J, max_speed, below = 1.0, 0.0, 0
         frames = [solver.x.numpy().copy()]
         start = time.perf_counter()
@@ -217,13 +209,13 @@ def sampled_scenes(preset: Preset, count: int, seed: int = 1234, progress=None) 
             max_speed = max(max_speed, float(solver.v.norm(dim=1).max()))
             frames.append(solver.x.numpy().copy())
         seconds = time.perf_counter() - start
-        water_types = np.full(int(water.sum()), WATER_PARTICLE_ID)
+        water_types = np.full(n, WATER_PARTICLE_ID)
         trajectories.append(Trajectory(position=np.stack(frames), particle_type=water_types, key=i))
         rows.append(
             {
-                "particles": int(water.sum()),
+                "particles": n,
                 "min_J": min_J,
-                "compressed_fraction": below / ((preset.num_frames - 1) * int(water.sum())),
+                "compressed_fraction": below / ((preset.num_frames - 1) * n),
                 "max_speed": max_speed,
                 "ramp_corrections": solver.ramp_corrections,
                 "wall_clamps": solver.wall_clamps,
@@ -252,11 +244,6 @@ def _statistics(trajectories: list[Trajectory], name: str) -> dict | None:
         return compute_statistics(trajectories, where=f"{name} sampled scenes")
     except DataError:
         return None
-
-
-def settings_of(preset: Preset, **overrides) -> SolverSettings:
-    """The preset's solver settings with fields replaced (for refinement studies and experiments)."""
-    return dataclasses.replace(preset.solver_settings(), **overrides)
 
 
 def one_thread() -> None:
@@ -300,7 +287,7 @@ def still_pool(
 
 
 #: The solver before issue 13 (mpm88's water): soft, inviscid, J integrated without a density correction.
-LEGACY = {"stiffness": 400.0, "substeps": 10, "density_relaxation": 0.0, "viscosity": 0.0}
+LEGACY = {"stiffness": 400.0, "substeps": 10, **SOLVER_BEFORE_ISSUE_13}
 #: Dam-break grid refinement: grids (nodes per metre) at the preset's particles-per-cell.
 REFINEMENT = (64, 128, 256)
 
