@@ -47,6 +47,7 @@ import torch
 from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model.culling import plan_culling
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.threads import apply_threads
 
 #: DeepMind's WaterRamps facts (DESIGN.md section 3): domain, radius, spacing, statistics, particle count.
 WATERRAMPS = {
@@ -721,8 +722,7 @@ def main(argv: list[str] | None = None) -> int:
     freeze.add_argument("--data", default="data/small", help="dataset whose test split is rolled out")
     freeze.add_argument("--trajectories", type=int, default=16)
     args = parser.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads or None)
     if args.freeze_check:
         if args.freeze_speed is None:
             parser.error("--freeze-check needs --freeze-speed")

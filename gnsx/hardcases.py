@@ -52,6 +52,7 @@ from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.presets import Preset, get_preset
 from gnsx.mpm.scenes import Scene, ramp_particles
 from gnsx.scoring import json_ready
+from gnsx.threads import apply_threads
 
 #: Variants of the model's rollout: the raw model, and the one held by the scene's boundary (the default).
 VARIANTS = ("raw", "held")
@@ -342,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(2, f"error: --cases: unknown {unknown}; choose from {sorted(names)}\n")
     if not args.frames_scale > 0:
         parser.exit(2, f"error: --frames-scale must be > 0, got {args.frames_scale}\n")
-    torch.set_num_threads(args.threads)
+    apply_threads(args.threads)
     checkpoint = Path(args.checkpoint)
     if checkpoint.is_dir() and (checkpoint / "model.ckpt").is_file():
         checkpoint = checkpoint / "model.ckpt"

@@ -95,8 +95,17 @@ def choose_threads(processes: int = 1, cores: int | None = None, load: float | N
 
 def apply_threads(setting: int | str | None, processes: int = 1) -> int:
     """Set torch's intra-op threads from a ``threads`` setting (None, ``"auto"`` or N); log and return the
-    count torch uses."""
+    count torch uses.
+
+    Every CLI that computes with torch calls this first, so it also applies the process's CPU memory
+    policy (:func:`gnsx.allocator.retain_freed_memory`: large tensors reuse freed memory instead of being
+    page-faulted in again every frame).
+    """
     import torch
+
+    from gnsx.allocator import retain_freed_memory
+
+    retain_freed_memory()
 
     if setting is None:
         log.info("Threads: %d (torch's default; threads=auto adapts to the load)", torch.get_num_threads())

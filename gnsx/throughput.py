@@ -34,6 +34,7 @@ from gnsx.cli import ArgumentParser, check_int, check_output_path, run_main
 from gnsx.datamodule import ParticleDataModule
 from gnsx.errors import ConfigError
 from gnsx.system import GNSSystem
+from gnsx.threads import apply_threads
 
 
 class _StepClock(Callback):
@@ -169,8 +170,7 @@ def _main(argv: list[str]) -> int:
             check_int(value, flag, minimum=minimum)
     if args.json:
         check_output_path(args.json, "--json")
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads or None)
     results = []
     # Under DDP every process runs this; rank 0 alone prints (the launcher sets LOCAL_RANK for the others).
     report = os.environ.get("LOCAL_RANK", "0") == "0"

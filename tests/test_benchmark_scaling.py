@@ -198,3 +198,42 @@ def test_cli_one_size_past_the_waterramps_box(capsys):
 def test_cli_rejects_bad_sizes():
     with pytest.raises(ValueError, match="--sizes: must be >= 1"):
         benchmark.main(["--sizes", "0"])
+
+
+_RSS_AFTER_FREE = """
+import sys
+import torch
+from gnsx.allocator import retain_freed_memory
+
+def rss_mb():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+
+applied = retain_freed_memory()
+before = rss_mb()
+big = torch.ones(64 * 2**20 // 4)  # 64 MB, above glibc's largest mmap threshold (32 MB)
+del big
+print(applied, rss_mb() - before)
+"""
+
+
+@pytest.mark.parametrize("defaults", [False, True])
+def test_freed_large_tensors_stay_in_the_process(defaults):
+    """gnsx.allocator: a freed 64 MB tensor stays resident (the next frame reuses it without page faults);
+    with GNSX_GLIBC_MALLOC_DEFAULTS=1 glibc unmaps it as usual."""
+    import os
+    import subprocess
+    import sys
+
+    if not os.path.exists("/proc/self/status"):
+        pytest.skip("needs /proc to read the resident memory")
+    env = dict(os.environ, GNSX_GLIBC_MALLOC_DEFAULTS="1" if defaults else "0")
+    out = subprocess.run(
+        [sys.executable, "-c", _RSS_AFTER_FREE], capture_output=True, text=True, env=env, check=True
+    ).stdout.split()
+    applied, kept_mb = out[0] == "True", float(out[1])
+    if defaults:
+        assert not applied and kept_mb < 16
+    else:
+        assert applied and kept_mb > 48

@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+import gnsx.mpm.generate as generate_module
 from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.data.__main__ import main as data_main
 from gnsx.data.store import SplitReader
 from gnsx.errors import DataError
 from gnsx.mpm.generate import generate_dataset, run_scene, simulate_scene, simulate_split_item
@@ -362,3 +366,106 @@ def test_generate_dataset_refuses_to_overwrite(tmp_path):
     (tmp_path / "other" / "notes.txt").write_text("keep me")
     with pytest.raises(DataError, match="not a gnsx dataset"):
         generate_dataset(tmp_path / "other", preset, workers=1, progress=False, overwrite=True)
+    (tmp_path / "file").write_text("not a folder")
+    with pytest.raises(DataError, match="exists and is not a folder"):
+        generate_dataset(tmp_path / "file", preset, workers=1, progress=False)
+    assert not (tmp_path / "other.partial").exists() and not (tmp_path / "file.partial").exists()
+
+
+# ------------------------------------------------------------------------------------- resumable generation
+
+
+class _Killed(Exception):
+    """Stands for the kill (SIGKILL, Ctrl-C) that stops a generation part way."""
+
+
+def _count_simulations(monkeypatch, fail_after: int | None = None) -> list[tuple[str, int]]:
+    """The ``(split, index)`` of every trajectory simulated from now on (workers=1 simulates in this
+    process); with ``fail_after``, the simulation after that many raises :class:`_Killed`."""
+    calls = []
+
+    def counting(preset, seed, split, index):
+        if fail_after is not None and len(calls) >= fail_after:
+            raise _Killed
+        calls.append((split, index))
+        return simulate_split_item(preset, seed, split, index)
+
+    monkeypatch.setattr(generate_module, "simulate_split_item", counting)
+    return calls
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_killed_generation_resumes_from_its_cache(tmp_path, monkeypatch, caplog):
+    preset = _tiny_preset()  # train 2, valid 1, test 1; 30 frames
+    out, cache = tmp_path / "d", tmp_path / "d.partial"
+    calls = _count_simulations(monkeypatch, fail_after=3)
+    with pytest.raises(_Killed):
+        generate_dataset(out, preset, seed=3, workers=1, progress=False)
+    assert calls == [("train", 0), ("train", 1), ("valid", 0)]
+    assert not out.exists()  # only the final swap creates it
+    cached = sorted(p.relative_to(cache).as_posix() for p in cache.rglob("*") if p.is_file())
+    assert cached == ["generation.json", "train/000000.npz", "train/000001.npz", "valid/000000.npz"]
+    record = json.loads((cache / "generation.json").read_text())
+    assert record["seed"] == 3 and record["preset_settings"] == json.loads(json.dumps(preset.to_dict()))
+
+    calls = _count_simulations(monkeypatch)
+    with caplog.at_level(logging.INFO, logger="gnsx"):
+        generate_dataset(out, preset, seed=3, workers=1, progress=False)
+    assert calls == [("test", 0)]  # only the missing one
+    assert "resuming, 3 of 4 trajectories already simulated" in caplog.text
+    assert not cache.exists()
+    # Byte for byte what an uninterrupted generation writes (arrays and metadata).
+    reference = generate_dataset(tmp_path / "ref", preset, seed=3, workers=1, progress=False)
+    assert len(calls) == 5 and _files(out) == _files(reference)
+
+
+def test_a_cache_of_other_settings_is_refused_naming_it(tmp_path, monkeypatch, capsys):
+    preset = get_preset("small", trajectories={"train": 1, "valid": 0, "test": 0})
+    out, cache = tmp_path / "d", tmp_path / "d.partial"
+    _count_simulations(monkeypatch, fail_after=0)  # any simulation raises _Killed: refusals come first
+    with pytest.raises(_Killed):
+        generate_dataset(out, preset, seed=0, workers=1, progress=False, splits=["train"])
+    record = (cache / "generation.json").read_text()
+    for overwrite in (False, True):
+        with pytest.raises(DataError) as refused:
+            generate_dataset(out, preset, seed=1, workers=1, progress=False, overwrite=overwrite)
+        message = str(refused.value)
+        assert message.startswith(
+            f"{cache}: cache of an unfinished generation with other settings: seed 0 (now 1)"
+        )
+        assert message.endswith(f"delete {cache} to start over")
+    with pytest.raises(DataError, match=r"preset num_frames 250 \(now 5\)"):
+        generate_dataset(out, dataclasses.replace(preset, num_frames=5), seed=0, workers=1, progress=False)
+    # The CLI: one line, exit status 2.
+    argv = ["generate", "--preset", "small", "--out", str(out), "--seed", "2", "--train", "1", "--valid", "0"]
+    assert data_main([*argv, "--test", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {cache}: ") and "seed 0 (now 2)" in err and err.count("\n") == 1
+    assert (cache / "generation.json").read_text() == record  # never deleted or rewritten
+    # Other trajectory counts are the same generation (trajectory i does not depend on them): accepted.
+    with pytest.raises(_Killed):
+        generate_dataset(out, dataclasses.replace(preset, trajectories={"train": 3}), seed=0, workers=1)
+
+
+def test_a_truncated_cached_file_is_simulated_again(tmp_path, monkeypatch, caplog):
+    preset = _tiny_preset(trajectories={"train": 2, "valid": 0, "test": 0})
+    out, cache = tmp_path / "d", tmp_path / "d.partial"
+    _count_simulations(monkeypatch, fail_after=1)
+    with pytest.raises(_Killed):
+        generate_dataset(out, preset, seed=3, workers=1, progress=False, splits=["train"])
+    first = cache / "train" / "000000.npz"
+    with np.load(first) as z:
+        expected = z["position"]
+    first.write_bytes(first.read_bytes()[: first.stat().st_size // 2])
+    (cache / "train" / ".000001.npz.x1y2.tmp").write_bytes(b"PK\x03\x04")  # a write the kill cut short
+
+    calls = _count_simulations(monkeypatch)
+    with caplog.at_level(logging.WARNING, logger="gnsx"):
+        generate_dataset(out, preset, seed=3, workers=1, progress=False, splits=["train"])
+    assert calls == [("train", 0), ("train", 1)]
+    assert f"{first}: unreadable" in caplog.text and "simulated again" in caplog.text
+    np.testing.assert_array_equal(SplitReader(out, "train")[0].position, expected)
+    assert not cache.exists()

@@ -5,7 +5,10 @@ Subcommands::
     python -m gnsx.data generate --preset small|waterramps --out DIR [--seed N] [--workers 2]
                                  [--train N --valid N --test N] [--overwrite]
         Simulate WaterRamps-like scenes with gnsx's MPM solver and write a gnsx dataset to DIR.
-        --train/--valid/--test override the preset's number of trajectories per split.
+        --train/--valid/--test override the preset's number of trajectories per split. A killed run resumes:
+        finished trajectories are kept in DIR.partial/ until the dataset is written, and rerunning the same
+        command (same preset and --seed) simulates only the missing ones; the progress bar says how many
+        were resumed. A DIR.partial/ of another preset or seed is refused (delete it to start over).
 
     python -m gnsx.data convert SRC DST [--format tfrecord|npz|h5] [--bounds LO HI [LO HI ...]]
                                 [--dt SECONDS] [--radius R] [--type-map SRC:DST,...] [--overwrite]
