@@ -317,6 +317,39 @@ def test_failed_write_leaves_nothing_and_keeps_the_existing_dataset(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
 
 
+def test_a_killed_writes_temporary_folder_is_removed_by_the_next_write(tmp_path, caplog):
+    """SIGKILL leaves ``.<name>.tmp-*`` behind; the next write of that dataset removes it when its writer is
+    gone (a dead pid on this host), and leaves a live writer's folder and one of unknown origin alone."""
+    import socket
+    import subprocess
+    import sys
+
+    from gnsx.runstate import liveness
+
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    dead_pid = int(dead.stdout)
+    folders = {name: tmp_path / f".ds.tmp-{name}" for name in ("killed", "live", "unknown", "other_host")}
+    for folder in folders.values():
+        (folder / "train").mkdir(parents=True)
+        (folder / "train" / "position.npy").write_bytes(b"x" * 1000)
+    (folders["killed"] / ".writer.json").write_text(
+        json.dumps({"pid": dead_pid, "pid_start": None, "host": socket.gethostname(), "heartbeat": 0})
+    )
+    (folders["live"] / ".writer.json").write_text(json.dumps(liveness()))
+    (folders["other_host"] / ".writer.json").write_text(
+        json.dumps({"pid": dead_pid, "pid_start": None, "host": "elsewhere", "heartbeat": 0})
+    )
+    with caplog.at_level("INFO", logger="gnsx"):
+        write_dataset(tmp_path / "ds", {"train": random_trajectories(2)}, GEOMETRY)
+    assert not folders["killed"].exists()
+    assert folders["live"].exists() and folders["unknown"].exists() and folders["other_host"].exists()
+    assert f"{folders['unknown']}: left by an unfinished earlier write" in caplog.text
+    # The writer record is not part of the dataset.
+    assert not (tmp_path / "ds" / ".writer.json").exists()
+
+
 def test_write_dataset_checks_dim_and_needs_train_for_statistics(tmp_path):
     with pytest.raises(DataError, match="dim is 3 but the dataset's dim is 2"):
         write_dataset(tmp_path / "ds", {"train": random_trajectories(2, dim=3)}, GEOMETRY)

@@ -36,6 +36,8 @@ dataset is replaced only when ``overwrite=True``.
 
 from __future__ import annotations
 
+import json
+import logging
 import os
 import re
 import shutil
@@ -52,6 +54,13 @@ from gnsx.data.metadata import Metadata, compute_statistics
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
 from gnsx.errors import DataError
+from gnsx.runstate import liveness, pid_alive
+
+log = logging.getLogger("gnsx")
+
+# Inside a dataset's temporary folder while it is written: who writes it (pid, its start time, host), so a
+# later write can tell a folder left by a killed writer from one still being written.
+_OWNER_FILE = ".writer.json"
 
 METADATA_FILE = "metadata.json"
 POSITIONS_FILE = "positions.npy"
@@ -434,8 +443,10 @@ def write_dataset(
     # Absolute for the file operations: a relative root such as "." has no usable name or parent.
     target = Path(os.path.abspath(root))
     target.parent.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned_writes(target)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
+        (tmp / _OWNER_FILE).write_text(json.dumps(liveness()))
         for split, trajectories in splits.items():
             write_split(tmp, split, trajectories, dim=meta.dim, where=str(root / split))
         if meta.sequence_length is not None:
@@ -450,6 +461,7 @@ def write_dataset(
                 meta = meta.with_statistics(compute_statistics(train, where=str(root / "train")))
         meta = Metadata.from_dict(meta.to_dict(), where=str(root / METADATA_FILE))
         meta.save(tmp / METADATA_FILE)
+        (tmp / _OWNER_FILE).unlink()
         _swap_into_place(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -539,6 +551,29 @@ def _check_dataset_target(root: Path, overwrite: bool) -> None:
         raise DataError(
             str(root), f"exists but is not a gnsx dataset (no {METADATA_FILE}); refusing to replace it"
         )
+
+
+def _remove_abandoned_writes(target: Path) -> None:
+    """Delete the temporary folders of earlier writes of ``target`` whose writer died (SIGKILL leaves them:
+    nothing runs to clean up), so a killed generation does not leak hundreds of MB per attempt.
+
+    Only folders whose writer is known to be gone are deleted: written by a process on this host that no
+    longer runs (:func:`gnsx.runstate.pid_alive`, pid start time checked). A folder of another host, or of
+    a gnsx from before the writer record, is left alone with a warning naming it.
+    """
+    for folder in sorted(target.parent.glob(f".{target.name}.tmp-*")):
+        if not folder.is_dir():
+            continue
+        try:
+            owner = json.loads((folder / _OWNER_FILE).read_text())
+            pid, start, host = int(owner["pid"]), owner.get("pid_start"), owner["host"]
+        except (OSError, ValueError, KeyError, TypeError):
+            log.warning("%s: left by an unfinished earlier write of %s (writer unknown); delete it to free "
+                        "the space", folder, target)  # fmt: skip
+            continue
+        if host == liveness()["host"] and not pid_alive(pid, start):
+            log.info("Removing %s, left by a write of %s that was killed (pid %d)", folder, target, pid)
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 def _swap_into_place(tmp: Path, target: Path) -> None:
