@@ -212,6 +212,31 @@ def test_generate_names_nan_from_the_solver(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "ds").exists()
 
 
+def test_generate_refuses_an_unfinished_generation_of_other_settings(tmp_path, capsys, monkeypatch):
+    """A killed generation leaves its finished trajectories in <out>.partial; a rerun with another seed must
+    not mix them in (nor delete hours of simulation): one line naming the cache and what differs."""
+    import gnsx.mpm.generate
+
+    def nan_trajectory(preset, seed, split, index):
+        position = np.random.default_rng(index).random((5, 4, 2)).astype(np.float32)
+        position[3, 1, 0] = np.nan
+        return Trajectory(position, np.full(4, 5), key=index)
+
+    monkeypatch.setattr(gnsx.mpm.generate, "simulate_split_item", nan_trajectory)
+    argv = ["generate", "--preset", "small", "--out", str(tmp_path / "ds"), "--workers", "1"]
+    counts = ["--train", "1", "--valid", "0", "--test", "0"]
+    assert run_main(_data_main, [*argv, *counts, "--seed", "0"]) == 2  # the NaN, after caching trajectory 0
+    capsys.readouterr()
+    record = (tmp_path / "ds.partial" / "generation.json").read_bytes()
+    message = _cli(
+        _data_main, [*argv, *counts, "--seed", "1"], tmp_path, capsys, "generate: a cache of another seed"
+    )
+    assert message.startswith(
+        "error: ds.partial: cache of an unfinished generation with other settings: seed 0"
+    )
+    assert (tmp_path / "ds.partial" / "generation.json").read_bytes() == record
+
+
 def test_convert_cases(tmp_path, capsys):
     nan = _npz_source(tmp_path / "nan", GEOMETRY, nan=True)
     message = _cli(
