@@ -190,15 +190,17 @@ def test_generate_flags(case, argv, expected, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing written
 
 
+def _nan_trajectory(preset, seed, split, index):
+    """Stands in for the MPM solver: trajectory ``index`` with a NaN at frame 3, particle 1."""
+    position = np.random.default_rng(index).random((5, 4, 2)).astype(np.float32)
+    position[3, 1, 0] = np.nan
+    return Trajectory(position, np.full(4, 5), key=index)
+
+
 def test_generate_names_nan_from_the_solver(tmp_path, capsys, monkeypatch):
     import gnsx.mpm.generate
 
-    def nan_trajectory(preset, seed, split, index):
-        position = np.random.default_rng(index).random((5, 4, 2)).astype(np.float32)
-        position[3, 1, 0] = np.nan
-        return Trajectory(position, np.full(4, 5), key=index)
-
-    monkeypatch.setattr(gnsx.mpm.generate, "simulate_split_item", nan_trajectory)
+    monkeypatch.setattr(gnsx.mpm.generate, "simulate_split_item", _nan_trajectory)
     argv = ["generate", "--preset", "small", "--out", str(tmp_path / "ds"), "--workers", "1"]
     message = _cli(
         _data_main,
@@ -217,12 +219,7 @@ def test_generate_refuses_an_unfinished_generation_of_other_settings(tmp_path, c
     not mix them in (nor delete hours of simulation): one line naming the cache and what differs."""
     import gnsx.mpm.generate
 
-    def nan_trajectory(preset, seed, split, index):
-        position = np.random.default_rng(index).random((5, 4, 2)).astype(np.float32)
-        position[3, 1, 0] = np.nan
-        return Trajectory(position, np.full(4, 5), key=index)
-
-    monkeypatch.setattr(gnsx.mpm.generate, "simulate_split_item", nan_trajectory)
+    monkeypatch.setattr(gnsx.mpm.generate, "simulate_split_item", _nan_trajectory)
     argv = ["generate", "--preset", "small", "--out", str(tmp_path / "ds"), "--workers", "1"]
     counts = ["--train", "1", "--valid", "0", "--test", "0"]
     assert run_main(_data_main, [*argv, *counts, "--seed", "0"]) == 2  # the NaN, after caching trajectory 0
