@@ -3,11 +3,11 @@
 glibc serves an allocation above its mmap threshold (at most 32 MB on 64-bit Linux) with a fresh ``mmap``
 and returns it to the kernel on free. A 100k-particle frame allocates and frees dozens of E x 64 fp32
 tensors of ~200 MB per message-passing step, so every one of them is faulted in page by page (and zeroed
-by the kernel) again at every frame: measured in one process, the two settings interleaved, one
-thread, 100k particles (~764k edges), the simplified model's frame took 9.1 s with glibc's defaults and
-3.6 s with mmap disabled and trimming off, while a 2.3k-particle frame (~4 MB tensors, under the
-threshold) did not change (docs/speed.md, "Linear to 100k"). That was the whole of the super-linear cost
-the scaling benchmark reported (2.31x linear at 100k).
+by the kernel) again at every frame. Measured in two processes run one after the other (the setting is
+per process), one thread, 100k particles (~764k edges): the simplified model's frame took 9.1 s with glibc's
+defaults and 3.6 s with mmap disabled and trimming off; the scaling benchmark went from 1.88x to 0.95x linear
+at 100k, while a 2.3k-particle frame (~4 MB tensors, under the threshold) did not change (docs/speed.md,
+section 3).
 
 :func:`retain_freed_memory` therefore tells glibc (``mallopt``) to take every allocation from its heap and
 never trim it: freed blocks are reused by the next frame's tensors of the same sizes. The cost: the

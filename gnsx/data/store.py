@@ -561,6 +561,7 @@ def _remove_abandoned_writes(target: Path) -> None:
     longer runs (:func:`gnsx.runstate.pid_alive`, pid start time checked). A folder of another host, or of
     a gnsx from before the writer record, is left alone with a warning naming it.
     """
+    this_host = liveness()["host"]
     for folder in sorted(target.parent.glob(f".{target.name}.tmp-*")):
         if not folder.is_dir():
             continue
@@ -571,7 +572,7 @@ def _remove_abandoned_writes(target: Path) -> None:
             log.warning("%s: left by an unfinished earlier write of %s (writer unknown); delete it to free "
                         "the space", folder, target)  # fmt: skip
             continue
-        if host == liveness()["host"] and not pid_alive(pid, start):
+        if host == this_host and not pid_alive(pid, start):
             log.info("Removing %s, left by a write of %s that was killed (pid %d)", folder, target, pid)
             shutil.rmtree(folder, ignore_errors=True)
 
