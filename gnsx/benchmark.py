@@ -415,7 +415,7 @@ def measure_culling(
     position_sequence, particle_type = position_sequence.to(device), particle_type.to(device)
     dynamic = particle_type != KINEMATIC_PARTICLE_ID
     _, edge_index, _ = simulator.build_graph(position_sequence, particle_type)
-    work = plan_culling(edge_index, dynamic, simulator.config["mp_steps"]).work()
+    work = plan_culling(edge_index, dynamic, simulator.hops).work()
     switches = (simulator.cull, simulator.freeze_speed)
     modes = {"cull": (True, None), "full": (False, None)}
     if freeze_speed is not None:

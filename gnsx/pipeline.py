@@ -46,6 +46,7 @@ from gnsx.evaluate import evaluate_run
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.numerics import Diverged
 from gnsx.resilience import AtomicCheckpointIO, Heartbeat, remove_stale_temporaries, wall_clock_checkpoint
+from gnsx.scoring import gravity_per_frame
 from gnsx.system import GNSSystem
 from gnsx.threads import apply_threads
 from gnsx.time_budget import TimeBudget, TrainingClock, parse_duration
@@ -65,6 +66,15 @@ def architecture(model_cfg: DictConfig) -> dict[str, Any]:
         arch.pop(key, None)
     arch["wall_clip"] = tuple(arch["wall_clip"])
     return arch
+
+
+def model_arguments(model_cfg: DictConfig, meta: Metadata) -> dict[str, Any]:
+    """:func:`architecture` plus what the data decides: the pairwise decoder's gravity (the baseline's
+    ``g dt^2`` from the data's ``dt``, :func:`gnsx.scoring.gravity_per_frame`) unless the config sets one."""
+    model = architecture(model_cfg)
+    if model.get("decoder") == "pairwise" and model.get("gravity") is None:
+        model["gravity"] = gravity_per_frame(meta).tolist()
+    return model
 
 
 def ensure_dataset(data_cfg: DictConfig) -> Path:
@@ -95,7 +105,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
     meta = datamodule.metadata
     train = cfg.train
     return GNSSystem(
-        model=architecture(cfg.model),
+        model=model_arguments(cfg.model, meta),
         dim=meta.dim,
         bounds=[list(map(float, b)) for b in meta.bounds],
         radius=float(cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius),
@@ -423,7 +433,8 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
     if resume is not None:
         meta = datamodule.metadata
         radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
-        check_resume(resume, architecture(cfg.model), meta.dim, float(radius), name="train.ckpt_path")
+        model = model_arguments(cfg.model, meta)
+        check_resume(resume, model, meta.dim, float(radius), name="train.ckpt_path")
     return datamodule
 
 

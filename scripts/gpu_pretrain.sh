@@ -52,7 +52,7 @@ done 2>&1 | tee -a "$OUT/gpu.txt"
 
 # Pretrain: the demo's recipe at batch $BATCH, LR scaled, steps fitted to the time budget.
 rm -rf "$RUN"
-$PY train.py data=small_400 model="${MODEL:-simplified_wall10}" data.root="$DATA" data.batch_size="$BATCH" data.num_workers=4 trainer="$TRAINER" \
+$PY train.py data=small_400 model="${MODEL:-simplified_pairwise}" data.root="$DATA" data.batch_size="$BATCH" data.num_workers=4 trainer="$TRAINER" \
   train=pretrain train.max_steps=40000 train.max_time="$BUDGET" train.fit_to_max_time=true \
   train.lr_init="$LR" train.val_every_n_steps="${VAL_EVERY:-2000}" train.val_max_trajectories=4 \
   train.checkpoint_every_n_steps=500 train.permanent_every_n_steps="${VAL_EVERY:-2000}" logger=csv \

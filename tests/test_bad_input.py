@@ -407,7 +407,7 @@ def test_composition_errors_are_one_line():
         "train.max_stepz=5": "Could not override 'train.max_stepz'. To append to your config use "
         "+train.max_stepz=5 (Key 'max_stepz' is not in struct)",
         "model=foo": "In 'config': Could not find 'model/foo'. Available options in 'model': original, "
-        "simplified, simplified_wall10",
+        "simplified, simplified_pairwise, simplified_wall10",
         "train.max_steps": "Error parsing override 'train.max_steps', missing EQUAL at '<EOF>'",
     }
     for override, expected in cases.items():

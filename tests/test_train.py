@@ -43,7 +43,7 @@ class _FakeDataModule:
     )
 
 
-@pytest.mark.parametrize("model", ["simplified", "simplified_wall10", "original"])
+@pytest.mark.parametrize("model", ["simplified", "simplified_wall10", "simplified_pairwise", "original"])
 @pytest.mark.parametrize(
     "group",
     [
@@ -77,12 +77,14 @@ def test_model_configs_match_the_paper_table():
     assert not simplified["edge_residual"] and original["edge_residual"]
 
 
-def test_default_model_is_the_simplified_one_with_a_longer_wall_feature():
+def test_default_model_is_the_simplified_one_with_a_longer_wall_feature_and_pair_forces():
     default = architecture(_compose([]).model)
     paper = architecture(_compose(["model=simplified"]).model)
     assert default["wall_clip"] == (0.0, 10.0) and paper["wall_clip"] == (0.0, 1.0)
-    assert {k: v for k, v in default.items() if k not in ("name", "wall_clip")} == {
-        k: v for k, v in paper.items() if k not in ("name", "wall_clip")
+    assert default["decoder"] == "pairwise" and "decoder" not in paper  # LearnedSimulator's default: "node"
+    changed = ("name", "wall_clip", "decoder", "gravity")
+    assert {k: v for k, v in default.items() if k not in changed} == {
+        k: v for k, v in paper.items() if k not in changed
     }
 
 

@@ -151,6 +151,55 @@ class InteractionNetwork(nn.Module):
         )
 
 
+class PairwiseDecoder(nn.Module):
+    """Momentum-conserving decoder: antisymmetric pair forces summed per receiver.
+
+    For the edge j -> i (sender j, receiver i) with processed node latents ``h_i``, ``h_j`` and the raw edge
+    features ``x_ij = [(p_j - p_i) / R, |p_j - p_i| / R]``:
+
+        f_ij = A([h_i, h_j, x_ij]) - A([h_j, h_i, x_ji])      x_ji = [-(p_j - p_i) / R, |p_j - p_i| / R]
+
+    with ``A`` a Linear-ReLU-Linear MLP. Swapping i and j negates ``f``, so for a symmetric radius graph the
+    pair forces of every pair cancel (Newton's third law) and the particles' summed output is 0 whatever the
+    weights: a cluster touching no wall and no static particle keeps its centre of mass in free fall
+    (Prantl et al. 2022 impose the same law with antisymmetric convolutions). Like phi_e's first layer,
+    ``A``'s is split per node, so the two terms cost two gathers and no concatenation.
+
+    Shapes: forward(h ``[N, L]`` (every sender's latent; receivers are the first R rows), edge_index
+    ``[2, E]`` (receivers below R), x ``[E, D + 1]``, num_receivers R, offsets) -> ``[R, D]``.
+    """
+
+    def __init__(self, latent_size: int, edge_in: int, hidden_size: int, out_size: int):
+        super().__init__()
+        self.latent_size = latent_size
+        self.first = nn.Linear(2 * latent_size + edge_in, hidden_size)
+        self.second = nn.Linear(hidden_size, out_size, bias=False)  # a bias would cancel in the difference
+        # x_ji from x_ij: the displacement changes sign, the distance does not.
+        self.register_buffer("swap_sign", torch.tensor([-1.0] * (edge_in - 1) + [1.0]), persistent=False)
+
+    def forward(
+        self, h: Tensor, edge_index: Tensor, x: Tensor, num_receivers: int, offsets: Tensor | None
+    ) -> Tensor:
+        senders, receivers = edge_index[0], edge_index[1]
+        latent = self.latent_size
+        weight_first, weight_second, weight_edge = self.first.weight.split([latent, latent, x.shape[1]], 1)
+        first_term = torch.addmm(self.first.bias, h, weight_first.t())  # [N, H]: h in A's first slot
+        second_term = h @ weight_second.t()  # [N, H]: h in A's second slot
+        edge_term = x @ weight_edge.t()  # [E, H]
+        forward_hidden = gather_sum(first_term[:num_receivers], second_term, receivers, senders, offsets)
+        backward_hidden = gather_sum(second_term[:num_receivers], first_term, receivers, senders, offsets)
+        forward_hidden += edge_term
+        # x_ji W = (x_ij * swap_sign) W; the distance column keeps its sign.
+        backward_hidden.addmm_(x * self.swap_sign, weight_edge.t())
+        forces = torch.relu_(forward_hidden) @ self.second.weight.t() - (
+            torch.relu_(backward_hidden) @ self.second.weight.t()
+        )  # [E, D]
+        return segment_sum(forces, receivers, offsets, num_receivers)
+
+
+DECODERS = ("node", "pairwise")
+
+
 class EncodeProcessDecode(nn.Module):
     """Encoder MLPs -> ``mp_steps`` unshared :class:`InteractionNetwork` steps -> decoder MLP.
 
@@ -164,11 +213,15 @@ class EncodeProcessDecode(nn.Module):
         out_size: size of the per-node output (dim: the normalised acceleration).
         edge_residual: residual edge update (GNS) or plain replacement (simplified).
         layer_norm: LayerNorm after every MLP except the decoder.
+        decoder: ``"node"`` (the GNS decoder MLP per node) or ``"pairwise"``: the node decoder plus a
+            :class:`PairwiseDecoder` on the edges into each node, which reads the latents of the senders
+            too, so an output depends on the nodes within ``mp_steps + 1`` hops (:attr:`hops`).
 
     Shapes:
         forward(x ``[N, node_in]``, edge_index ``[2, E]``, edge_attr ``[E, edge_in]``, decode ``[N]`` bool or
-        None) -> ``[N, out_size]``. With ``decode`` (exact culling, :mod:`gnsx.model.culling`) only the
-        rows of ``decode`` are computed, from the nodes within ``mp_steps`` hops of them; the others are 0.
+        None) -> ``[N, out_size]`` (node decoder) or ``[N, 2 * out_size]`` (pairwise: ``[node decoder, sum
+        of pair forces]``). With ``decode`` (exact culling, :mod:`gnsx.model.culling`) only the rows of
+        ``decode`` are computed, from the nodes within :attr:`hops` hops of them; the others are 0.
     """
 
     def __init__(
@@ -182,8 +235,11 @@ class EncodeProcessDecode(nn.Module):
         out_size: int,
         edge_residual: bool,
         layer_norm: bool,
+        decoder: str = "node",
     ):
         super().__init__()
+        if decoder not in DECODERS:
+            raise ValueError(f"EncodeProcessDecode: decoder must be one of {DECODERS}, got {decoder!r}")
         self.node_encoder = MLP(node_in, mlp_hidden_size, latent_size, mlp_hidden_layers, layer_norm)
         self.edge_encoder = MLP(edge_in, mlp_hidden_size, latent_size, mlp_hidden_layers, layer_norm)
         self.processor = nn.ModuleList(
@@ -191,6 +247,11 @@ class EncodeProcessDecode(nn.Module):
             for _ in range(mp_steps)
         )
         self.decoder = MLP(latent_size, mlp_hidden_size, out_size, mlp_hidden_layers, layer_norm=False)
+        self.pair_decoder = None
+        if decoder == "pairwise":
+            self.pair_decoder = PairwiseDecoder(latent_size, edge_in, mlp_hidden_size, out_size)
+        #: Hops from which a node's output can be reached: one per step, one more for the pair decoder.
+        self.hops = mp_steps + (self.pair_decoder is not None)
 
     def compile_blocks(self) -> None:
         """``torch.compile`` the encoders, every message-passing step and the decoder, in place.
@@ -200,8 +261,10 @@ class EncodeProcessDecode(nn.Module):
         ``dynamic=True`` because the node and edge counts change every frame; without it every new size
         recompiles. Parameters and their names are unchanged (checkpoints load either way).
         """
-        for block in (self.node_encoder, self.edge_encoder, *self.processor, self.decoder):
-            block.compile(dynamic=True)
+        blocks = (self.node_encoder, self.edge_encoder, *self.processor, self.decoder, self.pair_decoder)
+        for block in blocks:
+            if block is not None:
+                block.compile(dynamic=True)
 
     def forward(
         self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor | None = None
@@ -213,17 +276,24 @@ class EncodeProcessDecode(nn.Module):
         offsets = receiver_offsets(edge_index[1], x.shape[0])
         for step in self.processor:
             node_latent, edge_latent = step(node_latent, edge_index, edge_latent, offsets=offsets)
-        return self.decoder(node_latent)
+        decoded = self.decoder(node_latent)
+        if self.pair_decoder is None:
+            return decoded
+        pairs = self.pair_decoder(node_latent, edge_index, edge_attr, x.shape[0], offsets)
+        return torch.cat([decoded, pairs], dim=1)
 
     def _culled(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor) -> Tensor:
         """The same outputs for the nodes of ``decode``, computing only what they depend on (a shrinking
         frontier, :mod:`gnsx.model.culling`); the other rows are 0."""
-        plan = plan_culling(edge_index, decode, len(self.processor))
-        node_latent = self.node_encoder(x.index_select(0, plan.nodes))  # [n_M, L]
-        edge_latent = self.edge_encoder(edge_attr.index_select(0, plan.edges))  # [e_{M-1}, L]
+        plan = plan_culling(edge_index, decode, self.hops)
+        node_latent = self.node_encoder(x.index_select(0, plan.nodes))  # [n_hops, L]
+        edge_attr = edge_attr.index_select(0, plan.edges)  # [e_{hops-1}, edge_in]
+        edge_latent = self.edge_encoder(edge_attr)
         # Row pointer of the first step's receivers; the later steps' edges are prefixes of it.
-        offsets = receiver_offsets(plan.edge_index[1], plan.node_counts[-2] if self.processor else 0)
-        for step, hops_left in zip(self.processor, range(len(self.processor) - 1, -1, -1)):
+        offsets = receiver_offsets(plan.edge_index[1], plan.node_counts[-2] if self.hops else 0)
+        # With the pair decoder the last step still updates the decoded nodes' neighbours (its senders).
+        last = self.hops - len(self.processor)
+        for step, hops_left in zip(self.processor, range(self.hops - 1, last - 1, -1)):
             # Step k updates the nodes within M - k hops, from the edges into them (prefixes of the plan).
             num_edges = plan.edge_counts[hops_left]
             node_latent, edge_latent = step(
@@ -234,5 +304,15 @@ class EncodeProcessDecode(nn.Module):
                 offsets=offsets,
             )
         decoded = self.decoder(node_latent[: plan.num_decoded])  # [n_0, out]
+        if self.pair_decoder is not None:
+            num_edges = plan.edge_counts[0]
+            pairs = self.pair_decoder(
+                node_latent,
+                plan.edge_index[:, :num_edges],
+                edge_attr[:num_edges],
+                plan.num_decoded,
+                offsets,
+            )
+            decoded = torch.cat([decoded, pairs], dim=1)
         out = decoded.new_zeros(x.shape[0], decoded.shape[1])
         return out.index_copy(0, plan.nodes[: plan.num_decoded], decoded)

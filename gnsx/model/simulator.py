@@ -28,6 +28,17 @@ model needs no retraining):
   particle at rest (every velocity of its window at most ``freeze_speed``, data units per frame) with no
   moving particle within ``mp_steps`` hops is held like a static one until something that near moves.
 
+The decoder is a third choice (``decoder``, architecture: it needs its own training):
+
+* ``"node"`` (default, the paper's and DeepMind's): an MLP on each particle's latent gives its normalised
+  acceleration.
+* ``"pairwise"``: the acceleration is ``gravity + sum_j f_ij + gate_i w_i`` (data units per frame^2, scaled
+  by ``acc_std``): antisymmetric pair forces ``f_ij = -f_ji`` from the edges into i
+  (:class:`~gnsx.model.graph_network.PairwiseDecoder`), so interactions between water particles conserve
+  momentum and a cluster in free flight falls exactly at ``gravity``; plus a per-particle wall force ``w_i``
+  (the node decoder) switched on only within two radii of a wall (``gate_i``, :func:`wall_contact_gate`).
+  Static particles (ramps) exert pair forces too and are not pushed back: the ramp is an external body.
+
 Time unit: one frame (dt = 1). Velocities and accelerations are per-frame differences of positions, the
 units of the dataset statistics; the physical dt of the data (2.5 ms for WaterRamps) never enters.
 """
@@ -48,11 +59,28 @@ from gnsx.model.features import (
     velocity_sequence,
     wall_features,
 )
-from gnsx.model.graph_network import EncodeProcessDecode
+from gnsx.model.graph_network import DECODERS, EncodeProcessDecode
 from gnsx.model.neighbors import METHODS, radius_graph
 from gnsx.model.noise import random_walk_noise
 
 TYPE_ENCODINGS = ("scalar", "embedding")
+
+
+def wall_contact_gate(position: Tensor, bounds: Tensor, radius: float) -> Tensor:
+    """``[N, 1]`` weight of the pairwise model's wall force: 1 within one radius of the nearest wall, 0 beyond
+    two, linear between (continuous, so a particle's acceleration does not jump as it crosses the band).
+
+    Two radii: the MPM solver's walls act through its grid (a quadratic B-spline spans 1.5 cells, ~1.3 R on
+    the small preset), and beyond that water feels a wall only through the water in between, which the pair
+    forces carry.
+
+    Args:
+        position: ``[N, D]`` most recent positions (data units).
+        bounds: ``[D, 2]``.
+        radius: R (data units).
+    """
+    nearest = torch.minimum(position - bounds[:, 0], bounds[:, 1] - position).amin(dim=1, keepdim=True)
+    return (2.0 - nearest / radius).clamp(0.0, 1.0)
 
 
 class LearnedSimulator(nn.Module):
@@ -76,6 +104,10 @@ class LearnedSimulator(nn.Module):
         cull: exact culling (module docstring); also settable on the model (``simulator.cull = False``).
         freeze_speed: approximate freezing of particles at rest (module docstring, :meth:`frozen_particles`);
             None (off) or a speed > 0 in data units per frame; also settable on the model.
+        decoder: ``"node"`` or ``"pairwise"`` (module docstring).
+        gravity: ``[D]`` acceleration per frame^2 (data units) that the pairwise decoder adds to its forces
+            (:func:`gnsx.scoring.gravity_per_frame`); None: ``acc_mean`` (what the node decoder's zero output
+            means). Ignored by the node decoder.
         compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
             C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes
             speed only, not the results (to float rounding) nor the parameters; docs/speed.md has figures.
@@ -110,6 +142,8 @@ class LearnedSimulator(nn.Module):
         neighbor_search: str = "auto",
         cull: bool = True,
         freeze_speed: float | None = None,
+        decoder: str = "node",
+        gravity: Sequence[float] | None = None,
         compile: bool = False,
     ):
         super().__init__()
@@ -135,6 +169,8 @@ class LearnedSimulator(nn.Module):
             "neighbor_search": str(neighbor_search),
             "cull": bool(cull),
             "freeze_speed": None if freeze_speed is None else float(freeze_speed),
+            "decoder": str(decoder),
+            "gravity": None if gravity is None else [float(v) for v in gravity],
             "compile": bool(compile),
         }
         self._check_config()
@@ -151,6 +187,12 @@ class LearnedSimulator(nn.Module):
         self.register_buffer("bounds", torch.tensor(cfg["bounds"], dtype=torch.float32))  # [D, 2]
         for name in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
             self.register_buffer(name, torch.tensor(cfg[name], dtype=torch.float32))  # [D]
+        self.decoder = cfg["decoder"]
+        if self.decoder == "pairwise":
+            # What the pairwise output adds to its forces, normalised: (gravity - acc_mean) / acc_std. Not in
+            # the state_dict (checkpoints of the node decoder stay as they are); rebuilt from the config.
+            gravity = self.acc_mean if cfg["gravity"] is None else torch.tensor(cfg["gravity"])
+            self.register_buffer("free_fall", (gravity - self.acc_mean) / self.acc_std, persistent=False)
 
         if self.type_encoding == "embedding":
             self.type_embedding = nn.Embedding(NUM_PARTICLE_TYPES, cfg["type_embedding_size"])
@@ -170,6 +212,7 @@ class LearnedSimulator(nn.Module):
             out_size=self.dim,
             edge_residual=cfg["edge_residual"],
             layer_norm=cfg["layer_norm"],
+            decoder=self.decoder,
         )
         if cfg["compile"]:
             self.network.compile_blocks()
@@ -200,6 +243,10 @@ class LearnedSimulator(nn.Module):
             raise ValueError(f"LearnedSimulator: wall_clip must be (low, high), got {cfg['wall_clip']}")
         if cfg["freeze_speed"] is not None and not cfg["freeze_speed"] > 0:
             raise ValueError(f"LearnedSimulator: freeze_speed must be None or > 0, got {cfg['freeze_speed']}")
+        if cfg["decoder"] not in DECODERS:
+            raise ValueError(f"LearnedSimulator: decoder must be one of {DECODERS}, got {cfg['decoder']!r}")
+        if cfg["gravity"] is not None and len(cfg["gravity"]) != dim:
+            raise ValueError(f"LearnedSimulator: gravity must have dim={dim} values, got {cfg['gravity']}")
         if cfg["neighbor_search"] not in METHODS:
             raise ValueError(
                 f"LearnedSimulator: neighbor_search must be one of {METHODS}, got {cfg['neighbor_search']!r}"
@@ -227,10 +274,15 @@ class LearnedSimulator(nn.Module):
         self.config["freeze_speed"] = None if value is None else float(value)
 
     @property
+    def hops(self) -> int:
+        """Graph hops that can change a prediction: ``mp_steps``, plus one for the pairwise decoder."""
+        return self.network.hops
+
+    @property
     def reach(self) -> float:
-        """``mp_steps * radius`` (data units): no particle farther than this from a particle changes its
+        """``hops * radius`` (data units): no particle farther than this from a particle changes its
         prediction (messages travel one radius per step)."""
-        return self.config["mp_steps"] * self.radius
+        return self.hops * self.radius
 
     def num_parameters(self) -> int:
         """Number of trainable parameters."""
@@ -300,6 +352,26 @@ class LearnedSimulator(nn.Module):
     ) -> Tensor:
         """Normalised acceleration ``[N, D]``; with :attr:`cull` only the rows of ``decode`` ``[N]`` (bool)
         are computed, the others are 0. ``graph``: :meth:`build_graph`'s output when already built."""
+        output = self._network_output(position_sequence, particle_type, batch, decode, graph)
+        if self.decoder == "node":
+            return output
+        wall, pairs = output.split(self.dim, dim=1)
+        gate = wall_contact_gate(position_sequence[:, -1], self.bounds, self.radius)
+        acceleration = self.free_fall + pairs + gate * wall
+        if self.cull and not bool(decode.all()):  # rows that were not computed stay 0, as for "node"
+            acceleration = acceleration * decode[:, None]
+        return acceleration
+
+    def _network_output(
+        self,
+        position_sequence: Tensor,
+        particle_type: Tensor,
+        batch: Tensor | None,
+        decode: Tensor,
+        graph: tuple[Tensor, Tensor, Tensor] | None,
+    ) -> Tensor:
+        """The network's output ``[N, D]`` (node decoder) or ``[N, 2 D]`` (pairwise: wall force, pair forces),
+        culled as :meth:`_accelerations` says."""
         if graph is not None:
             return self.network(*graph, decode=decode if self.cull and not bool(decode.all()) else None)
         if not self.cull or bool(decode.all()):  # nothing to leave out: the full graph, no bookkeeping
@@ -384,7 +456,7 @@ class LearnedSimulator(nn.Module):
             )
         speed = velocity_sequence(position_sequence).norm(dim=-1).amax(dim=1)  # [N]
         resting = dynamic & (speed <= self.freeze_speed)
-        steps = self.config["mp_steps"]
+        steps = self.hops
         return resting & (hop_distance(edge_index, dynamic & ~resting, steps) > steps)
 
     def normalized_target(self, next_position: Tensor, position_sequence: Tensor) -> Tensor:
