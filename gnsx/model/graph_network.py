@@ -185,15 +185,12 @@ class PairwiseDecoder(nn.Module):
         weight_first, weight_second, weight_edge = self.first.weight.split([latent, latent, x.shape[1]], 1)
         first_term = torch.addmm(self.first.bias, h, weight_first.t())  # [N, H]: h in A's first slot
         second_term = h @ weight_second.t()  # [N, H]: h in A's second slot
-        edge_term = x @ weight_edge.t()  # [E, H]
         forward_hidden = gather_sum(first_term[:num_receivers], second_term, receivers, senders, offsets)
         backward_hidden = gather_sum(second_term[:num_receivers], first_term, receivers, senders, offsets)
-        forward_hidden += edge_term
-        # x_ji W = (x_ij * swap_sign) W; the distance column keeps its sign.
-        backward_hidden.addmm_(x * self.swap_sign, weight_edge.t())
-        forces = torch.relu_(forward_hidden) @ self.second.weight.t() - (
-            torch.relu_(backward_hidden) @ self.second.weight.t()
-        )  # [E, D]
+        forward_hidden.addmm_(x, weight_edge.t())  # in place, as phi_e's edge term
+        backward_hidden.addmm_(x * self.swap_sign, weight_edge.t())  # x_ji: the distance keeps its sign
+        # A's second layer is linear: A(ij) - A(ji) = (relu(ij) - relu(ji)) W, one [E, D] product for both.
+        forces = (torch.relu_(forward_hidden) - torch.relu_(backward_hidden)) @ self.second.weight.t()
         return segment_sum(forces, receivers, offsets, num_receivers)
 
 

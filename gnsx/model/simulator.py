@@ -26,7 +26,8 @@ model needs no retraining):
   (unused) values the decoder would give them. Exact for training too: the loss counts dynamic particles only.
 * ``freeze_speed`` (default None, off; approximate, opt-in): in :meth:`predict_positions`, a dynamic
   particle at rest (every velocity of its window at most ``freeze_speed``, data units per frame) with no
-  moving particle within ``mp_steps`` hops is held like a static one until something that near moves.
+  moving particle within :attr:`~LearnedSimulator.hops` hops is held like a static one until something
+  that near moves.
 
 The decoder is a third choice (``decoder``, architecture: it needs its own training):
 
@@ -358,7 +359,7 @@ class LearnedSimulator(nn.Module):
         wall, pairs = output.split(self.dim, dim=1)
         gate = wall_contact_gate(position_sequence[:, -1], self.bounds, self.radius)
         acceleration = self.free_fall + pairs + gate * wall
-        if self.cull and not bool(decode.all()):  # rows that were not computed stay 0, as for "node"
+        if self.cull:  # rows that were not computed stay 0, as for "node" (no host sync to test decode.all())
             acceleration = acceleration * decode[:, None]
         return acceleration
 
@@ -435,7 +436,7 @@ class LearnedSimulator(nn.Module):
         """Dynamic particles at rest in a resting neighbourhood (approximate freezing), ``[N]`` bool.
 
         At rest: every velocity of the window (per-frame position differences) at most :attr:`freeze_speed`
-        long. Resting neighbourhood: no moving (not at rest) dynamic particle within ``mp_steps`` hops in the
+        long. Resting neighbourhood: no moving (not at rest) dynamic particle within :attr:`hops` hops in the
         radius graph, the model's receptive field. The approximation: the frozen particle's own predicted
         motion, small while its neighbourhood rests, is dropped. A frozen particle is held, so its velocity
         becomes 0 and it stays frozen until a moving particle comes within that many hops; measured error and
