@@ -109,7 +109,7 @@ simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.c
 hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scenes, 10x horizon): MPM vs raw vs held model
 	$(PY) -m gnsx.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)
 
-bench: install ## Scaling benchmark: ms/frame, memory, GFLOP/s vs particles (1k-100k), both models, inference + training; JSON + plot in outputs/bench (ARGS='--threads 2', '--device cuda', '--particles 2300': one size)
+bench: install ## Scaling benchmark: ms/frame, memory, GFLOP/s vs particles (1k-100k), simplified / simplified_pairwise / original, inference + training; JSON + plot in outputs/bench (ARGS='--threads 2', '--device cuda', '--particles 2300': one size)
 	$(PY) -m gnsx.benchmark $(ARGS)
 
 bench-cull: install ## ms/frame with and without exact culling, 5 scenes at WaterRamps size and 10x (ARGS='--threads 2 --models simplified original')

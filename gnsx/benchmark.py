@@ -17,11 +17,11 @@ Memory:
   reused without showing up, so read it as a lower bound. Elsewhere ``peak_memory_mb`` is None.
 
 CLI (``make bench``): ``python -m gnsx.benchmark`` runs the scaling benchmark (:mod:`gnsx.scaling`): ms/frame,
-memory, FLOP/s of inference and a training step of both models at 1k to 100k particles (1M on a GPU), next to
-the matmul peak, with a table, JSON and a plot (``docs/benchmark.md``). ``--particles N`` times the simplified
-and the original GNS (untrained weights: speed does not depend on them) on one packed scene of N particles
-instead, one after the other, and prints both with their ratio (the box grows past WaterRamps' when the scene
-needs it).
+memory, FLOP/s of inference and a training step of the models (:data:`DEFAULT_MODELS`) at 1k to 100k
+particles (1M on a GPU), next to the matmul peak, with a table, JSON and a plot (``docs/benchmark.md``).
+``--particles N`` times the same models (untrained weights: speed does not depend on them) on one packed scene
+of N particles instead, one after the other, and prints them with the original / simplified ratio (the box
+grows past WaterRamps' when the scene needs it).
 
 Culling (``make bench-cull``): ``python -m gnsx.benchmark --cull`` times frames with and without exact
 culling (:mod:`gnsx.model.culling`), interleaved frame by frame in one run, on the scenes of
@@ -60,9 +60,12 @@ WATERRAMPS = {
     "acc_mean": [-1.71e-07, -2.14e-07],
     "acc_std": [1.68e-04, 1.82e-04],
 }
-#: The two models of the paper's comparison, as LearnedSimulator arguments (conf/model/*.yaml).
+#: The two models of the paper's comparison and gnsx's default (``simplified_pairwise``: the simplified model
+#: with the momentum-conserving decoder and the wall feature clipped at 10 R), as LearnedSimulator arguments
+#: (conf/model/*.yaml).
 MODELS = {
     "simplified": {},
+    "simplified_pairwise": {"wall_clip": (0.0, 10.0), "decoder": "pairwise"},
     "original": {
         "latent_size": 128,
         "mp_steps": 10,
@@ -75,6 +78,8 @@ MODELS = {
         "self_edges": True,
     },
 }
+#: What the timing modes run without ``--models``: the paper's pair and gnsx's default between them.
+DEFAULT_MODELS = ("simplified", "simplified_pairwise", "original")
 _MB = 1e6
 
 
@@ -643,18 +648,19 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m gnsx.benchmark",
         description="Scaling benchmark (default, make bench): ms/frame, memory and GFLOP/s of inference "
-        "and training of the simplified and original GNS from 1k to 100k particles (1M on a GPU), with the "
-        "matmul peak, a table, JSON and a plot. --particles N: both models on one packed scene of N "
+        "and training of the simplified GNS, gnsx's default (simplified_pairwise) and the original GNS "
+        "from 1k to 100k particles (1M on a GPU), with the "
+        "matmul peak, a table, JSON and a plot. --particles N: the same models on one packed scene of N "
         "particles. --cull: ms/frame with and without exact culling on scenes where it pays "
         "(make bench-cull).",
     )
     parser.add_argument("--models", nargs="+", default=None, choices=sorted(MODELS),
-                        help="default: both (simplified only with --cull)")  # fmt: skip
+                        help="default: the three models (--cull: simplified)")  # fmt: skip
     parser.add_argument(
         "--particles",
         type=int,
         default=None,
-        help="one size, both models, packed scene with ramps (former default: 2300)",
+        help="one size, the default models, packed scene with ramps (former default: 2300)",
     )
     parser.add_argument("--spacing", type=float, default=WATERRAMPS["spacing"])
     parser.add_argument("--radius", type=float, default=WATERRAMPS["radius"])
@@ -744,7 +750,7 @@ def main(argv: list[str] | None = None) -> int:
         print(format_culling(results))
     elif args.particles is not None:
         results = compare_models(
-            args.models or ["simplified", "original"], args.particles, args.spacing, args.radius, args.device,
+            args.models or list(DEFAULT_MODELS), args.particles, args.spacing, args.radius, args.device,
             3 if args.warmup is None else args.warmup, 20 if args.repeats is None else args.repeats,
         )  # fmt: skip
         print(format_results(results))
@@ -772,7 +778,7 @@ def _scaling_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> 
             raise ValueError(f"{flag}: must be >= {low}, got {min(values)}")
     json_path = args.json or scaling.default_json_path(args.device)
     results = scaling.run_scaling(
-        args.models or ["simplified", "original"], sizes, args.device,
+        args.models or list(DEFAULT_MODELS), sizes, args.device,
         2 if args.warmup is None else args.warmup, args.repeats, args.max_seconds,
         None if args.max_memory_gb is None else 1000 * args.max_memory_gb, args.batch_size,
         not args.no_training, args.radius, args.spacing, args.matmul_size,

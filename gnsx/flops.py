@@ -18,13 +18,19 @@ edge input D + 1 and output D. ``mlp(r, a, b) = 2 r (a W + (k - 1) W^2 + W b)`` 
                node MLP, first layer split over [sum_j m_ij, v_i] 2 N L W + 2 N L W
                    the rest of the node MLP                      2 N ((k - 1) W^2 + W L)
     decoder    mlp(N, L, D)
+    pairwise   (``decoder: pairwise``, graph_network.PairwiseDecoder: Linear-ReLU-Linear for any k):
+               the node decoder above, plus A's first layer split as phi_e's:
+                   the two node terms once per node              2 N L W + 2 N L W
+                   the edge term for x_ij and for x_ji           2 E (D + 1) W + 2 E (D + 1) W
+                   the second layer, once for both directions    2 E W D
 
 so a step costs ``8 N L W + 2 E L W + 2 (N + E)((k - 1) W^2 + W L)``; the unsplit first layer would cost
 ``6 E L W`` on the edges instead of ``2 E L W + 4 N L W``. The type embedding is a lookup (0 FLOPs).
 
 A training step (forward and backward) costs three times the forward, less the products autograd skips: the
 gradient with respect to the encoders' inputs, which need none (the edge features always; the node features
-when the type is a scalar: with a learned embedding they carry the embedding's gradient). Adam's update
+when the type is a scalar: with a learned embedding they carry the embedding's gradient), and the pair
+decoder's edge features (both directions). Adam's update
 (~10 operations per parameter) is not counted. Exact culling (static particles in the scene) computes less
 than this; the scaling benchmark's scenes are all water, so it computes exactly this.
 """
@@ -75,6 +81,8 @@ def forward_flops(config: Mapping[str, Any], num_nodes: int, num_edges: int) -> 
         "processor": s["M"] * step,
         "decoder": mlp_flops(n, L, W, D, k),
     }
+    if config.get("decoder", "node") == "pairwise":
+        parts["decoder"] += 4 * n * L * W + 4 * e * (D + 1) * W + 2 * e * W * D
     parts["total"] = sum(parts.values())
     return parts
 
@@ -83,6 +91,8 @@ def training_flops(config: Mapping[str, Any], num_nodes: int, num_edges: int) ->
     """Matmul FLOPs of one forward and backward pass on a batch of N nodes and E edges (module docstring)."""
     s = _sizes(config)
     skipped = 2 * num_edges * (s["D"] + 1) * s["W"]  # edge encoder: no gradient for its input
+    if config.get("decoder", "node") == "pairwise":
+        skipped += 2 * skipped  # the pair decoder's edge terms (x_ij and x_ji): none for theirs either
     if config["type_encoding"] != "embedding":
         skipped += 2 * num_nodes * s["F"] * s["W"]  # node encoder: no gradient for its input either
     return 3 * forward_flops(config, num_nodes, num_edges)["total"] - skipped

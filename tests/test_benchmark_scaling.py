@@ -175,7 +175,7 @@ def test_cli_prints_table_writes_json_and_plot(tmp_path, capsys):
     assert "| model | mode | particles |" in out and "fp32 matmul peak" in out
     assert "linearity simplified/training" in out and "rollout memory (simplified" in out
     results = json.loads(path.read_text())
-    assert len(results["rows"]) == 8  # 2 sizes x 2 models x (inference, training)
+    assert len(results["rows"]) == 12  # 2 sizes x 3 models x (inference, training)
     assert set(results["linearity"]) == {f"{m}/{mode}" for m in MODELS for mode in ("inference", "training")}
     meta = results["meta"]
     assert meta["threads"] == 1 and meta["matmul_gflops_peak"] > 0
