@@ -290,13 +290,13 @@ def compare_models(
 
 def format_results(results: dict[str, dict]) -> str:
     """A table of :func:`compare_models`' results, with original/simplified ratios when both are there."""
-    lines = [
-        f"{'model':<12} {'params':>9} {'particles':>9} {'edges':>7} {'ms/frame':>9} {'peak MB':>8}  device"
-    ]
+    width = max([12, *(len(name) for name in results)])
+    header = f"{'params':>9} {'particles':>9} {'edges':>7} {'ms/frame':>9} {'peak MB':>8}  device"
+    lines = [f"{'model':<{width}} {header}"]
     for name, r in results.items():
         peak = "n/a" if r["peak_memory_mb"] is None else f"{r['peak_memory_mb']:.1f}"
         lines.append(
-            f"{name:<12} {r['parameters']:>9} {r['num_particles']:>9} {r['num_edges']:>7} "
+            f"{name:<{width}} {r['parameters']:>9} {r['num_particles']:>9} {r['num_edges']:>7} "
             f"{r['ms_per_frame']:>9.2f} {peak:>8}  {r['device']} ({r['memory_measure']})"
         )
     if {"simplified", "original"} <= set(results):

@@ -6,6 +6,7 @@ trick of the fast path (no split first layer, no ``index_add_``):
     m_ij = phi_e([e_ij, v_i, v_j])                  (per-edge concatenation, then the whole MLP)
     v_i <- v_i + phi_v([sum_j m_ij, v_i])            (the sum as a dense incidence-matrix product)
     e_ij <- m_ij   or   e_ij + m_ij                  (edge residual)
+    f_i = sum_j A([v_i, v_j, x_ij]) - A([v_j, v_i, x_ji])   (pair decoder: whole MLP on both concatenations)
 
 so a test comparing the two proves the fast path computes the equations, forward and backward.
 """
@@ -29,7 +30,8 @@ def incidence(edge_index: Tensor, num_nodes: int, dtype: torch.dtype) -> Tensor:
 def reference_forward(
     network: EncodeProcessDecode, x: Tensor, edge_index: Tensor, edge_attr: Tensor
 ) -> Tensor:
-    """The network's output ``[N, out]`` computed from the equations with the network's own parameters."""
+    """The network's output ``[N, out]`` (``[N, 2 out]`` with the pair decoder: node decoder, pair forces)
+    computed from the equations with the network's own parameters."""
     senders, receivers = edge_index
     node_latent = network.node_encoder(x)
     edge_latent = network.edge_encoder(edge_attr)
@@ -41,4 +43,17 @@ def reference_forward(
         aggregated = summation @ messages
         node_latent = node_latent + step.node_mlp(torch.cat([aggregated, node_latent], dim=1))
         edge_latent = edge_latent + messages if step.edge_residual else messages
-    return network.decoder(node_latent)
+    decoded = network.decoder(node_latent)
+    pair = network.pair_decoder
+    if pair is None:
+        return decoded
+
+    def pair_mlp(first: Tensor, second: Tensor, features: Tensor) -> Tensor:
+        return pair.second(torch.relu(pair.first(torch.cat([first, second, features], dim=1))))
+
+    # x_ji: the displacement to the other particle changes sign, the distance does not.
+    reversed_attr = torch.cat([-edge_attr[:, :-1], edge_attr[:, -1:]], dim=1)
+    forces = pair_mlp(node_latent[receivers], node_latent[senders], edge_attr) - pair_mlp(
+        node_latent[senders], node_latent[receivers], reversed_attr
+    )
+    return torch.cat([decoded, summation @ forces], dim=1)

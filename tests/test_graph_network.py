@@ -162,7 +162,7 @@ def test_fast_network_matches_reference_with_shipped_weights():
     assert torch.allclose(fast, reference, rtol=1e-4, atol=1e-4 * float(reference.abs().max()))
 
 
-@pytest.mark.parametrize("name", ["simplified", "original"])
+@pytest.mark.parametrize("name", ["simplified", "simplified_pairwise", "original"])
 def test_culled_network_matches_reference_on_decoded_rows(name):
     """Exact culling (decode=mask) is an option of the fast path: its decoded rows are the reference's."""
     from reference_gns import reference_forward
@@ -196,7 +196,7 @@ def _decoded_loss_gradients(network, node_features, edge_index, edge_attr, decod
     return [p.grad.clone() for p in network.parameters() if p.grad is not None]
 
 
-@pytest.mark.parametrize("name", ["simplified", "original", "shipped"])
+@pytest.mark.parametrize("name", ["simplified", "simplified_pairwise", "original", "shipped"])
 def test_culled_gradients_match_reference(name):
     """Backward of the culled fast path (segment sums over receiver-sorted prefixes, gather_sum) equals
     autograd of the reference, random weights of both configs and the shipped weights."""
