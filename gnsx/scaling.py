@@ -517,7 +517,7 @@ def plot_scaling(results: dict, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(7, 5), dpi=120)
-    colours = {"simplified": "tab:blue", "original": "tab:red"}
+    colours = {"simplified": "tab:blue", "simplified_pairwise": "tab:green", "original": "tab:red"}
     for key, lin in results["linearity"].items():
         model, mode = key.split("/")
         series = sorted((r for r in results["rows"] if (r["model"], r["mode"]) == (model, mode)),
