@@ -90,9 +90,10 @@ def forward_flops(config: Mapping[str, Any], num_nodes: int, num_edges: int) -> 
 def training_flops(config: Mapping[str, Any], num_nodes: int, num_edges: int) -> int:
     """Matmul FLOPs of one forward and backward pass on a batch of N nodes and E edges (module docstring)."""
     s = _sizes(config)
-    skipped = 2 * num_edges * (s["D"] + 1) * s["W"]  # edge encoder: no gradient for its input
+    edge_input_gradient = 2 * num_edges * (s["D"] + 1) * s["W"]  # one [E, D + 1] x [D + 1, W] product's
+    skipped = edge_input_gradient  # edge encoder: no gradient for its input
     if config.get("decoder", "node") == "pairwise":
-        skipped += 2 * skipped  # the pair decoder's edge terms (x_ij and x_ji): none for theirs either
+        skipped += 2 * edge_input_gradient  # the pair decoder's edge terms, x_ij and x_ji: none either
     if config["type_encoding"] != "embedding":
         skipped += 2 * num_nodes * s["F"] * s["W"]  # node encoder: no gradient for its input either
     return 3 * forward_flops(config, num_nodes, num_edges)["total"] - skipped
