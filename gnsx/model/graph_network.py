@@ -188,7 +188,8 @@ class PairwiseDecoder(nn.Module):
         forward_hidden = gather_sum(first_term[:num_receivers], second_term, receivers, senders, offsets)
         backward_hidden = gather_sum(second_term[:num_receivers], first_term, receivers, senders, offsets)
         forward_hidden.addmm_(x, weight_edge.t())  # in place, as phi_e's edge term
-        backward_hidden.addmm_(x * self.swap_sign, weight_edge.t())  # x_ji: the distance keeps its sign
+        # x_ji W^T = (x_ij * swap_sign) W^T = x_ij (W * swap_sign)^T: flip W's columns, no [E, D + 1] copy.
+        backward_hidden.addmm_(x, (weight_edge * self.swap_sign).t())
         # A's second layer is linear: A(ij) - A(ji) = (relu(ij) - relu(ji)) W, one [E, D] product for both.
         forces = (torch.relu_(forward_hidden) - torch.relu_(backward_hidden)) @ self.second.weight.t()
         return segment_sum(forces, receivers, offsets, num_receivers)
