@@ -269,6 +269,7 @@ def compare_models(
     device: str = "cpu",
     warmup: int = 3,
     repeats: int = 20,
+    compile: bool = False,
 ) -> dict[str, dict]:
     """:func:`measure_inference` of each named model on the same packed scene (history padded per model), in
     WaterRamps' box or, for more particles than it holds, a square box of side
@@ -280,7 +281,7 @@ def compare_models(
     bounds = WATERRAMPS["bounds"] if side <= 0.8 else [[0.1, 0.1 + side]] * 2
     results = {}
     for name in names:
-        simulator = build_model(name, radius, bounds=bounds).to(device)
+        simulator = build_model(name, radius, bounds=bounds, compile=compile).to(device)
         sequence, particle_type = packed_scene(num_particles, spacing, bounds, simulator.history)
         result = measure_inference(simulator, sequence, particle_type, warmup=warmup, repeats=repeats)
         results[name] = result | {"parameters": simulator.num_parameters()}
@@ -677,6 +678,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="model.compile on (torch.compile of the network's blocks; warm-up includes compiling)",
+    )
+    parser.add_argument(
         "--json",
         type=Path,
         default=None,
@@ -752,6 +758,7 @@ def main(argv: list[str] | None = None) -> int:
         results = compare_models(
             args.models or list(DEFAULT_MODELS), args.particles, args.spacing, args.radius, args.device,
             3 if args.warmup is None else args.warmup, 20 if args.repeats is None else args.repeats,
+            compile=args.compile,
         )  # fmt: skip
         print(format_results(results))
     else:
@@ -782,7 +789,7 @@ def _scaling_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> 
         2 if args.warmup is None else args.warmup, args.repeats, args.max_seconds,
         None if args.max_memory_gb is None else 1000 * args.max_memory_gb, args.batch_size,
         not args.no_training, args.radius, args.spacing, args.matmul_size,
-        log=lambda line: print(line, file=sys.stderr, flush=True),
+        log=lambda line: print(line, file=sys.stderr, flush=True), compile=args.compile,
     )  # fmt: skip
     if args.rollout_memory:
         from gnsx.memtrack import hold_still, rollout_growth, rollout_memory

@@ -93,8 +93,16 @@ def ensure_dataset(data_cfg: DictConfig) -> Path:
     from gnsx.mpm.presets import get_preset
 
     counts = OmegaConf.select(data_cfg, "trajectories", default=None)
-    overrides = {} if counts is None else {"trajectories": dict(OmegaConf.to_container(counts, resolve=True))}
-    preset = get_preset(data_cfg.preset, **overrides)
+    fields = OmegaConf.select(data_cfg, "preset_overrides", default=None)
+    overrides = {} if fields is None else dict(OmegaConf.to_container(fields, resolve=True))
+    if counts is not None:
+        overrides["trajectories"] = dict(OmegaConf.to_container(counts, resolve=True))
+    # Lists from YAML become the preset's (min, max) tuples.
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
+    try:
+        preset = get_preset(data_cfg.preset, **overrides)
+    except (KeyError, ValueError) as e:
+        raise ConfigError("data.preset_overrides", str(e.args[0]) if e.args else str(e)) from None
     log.info("Generating the '%s' preset %s into %s (first use)", preset.name, preset.trajectories, root)
     generate_dataset(root, preset, seed=data_cfg.generate_seed)
     return root

@@ -119,14 +119,16 @@ def training_batch(num_particles: int, history: int, batch_size: int, spacing: f
 
 
 # -- measurements -----------------------------------------------------------------------------------------
-def build_system(name: str, bounds: Sequence[Sequence[float]], radius: float = WATERRAMPS["radius"]):
+def build_system(
+    name: str, bounds: Sequence[Sequence[float]], radius: float = WATERRAMPS["radius"], compile: bool = False
+):
     """An untrained :class:`gnsx.system.GNSSystem` of a :data:`gnsx.benchmark.MODELS` config with WaterRamps'
-    statistics in ``bounds``."""
+    statistics in ``bounds`` (``compile``: the ``model.compile`` switch)."""
     from gnsx.system import GNSSystem
 
     facts = {k: WATERRAMPS[k] for k in ("vel_mean", "vel_std", "acc_mean", "acc_std")}
     bounds = [list(pair) for pair in bounds]
-    return GNSSystem(model=dict(MODELS[name]), dim=2, bounds=bounds, radius=radius, **facts)
+    return GNSSystem(model=dict(MODELS[name], compile=compile), dim=2, bounds=bounds, radius=radius, **facts)
 
 
 def training_step(system, batch, optimizer, scheduler=None) -> torch.Tensor:
@@ -294,6 +296,7 @@ def run_scaling(
     spacing: float = WATERRAMPS["spacing"],
     matmul_size: int | None = None,
     log: Callable[[str], None] = print,
+    compile: bool = False,
 ) -> dict:
     """Measure every size, model and mode (module docstring).
 
@@ -303,6 +306,8 @@ def run_scaling(
         max_seconds: time budget of one measurement (warm-up included), seconds.
         max_memory_mb: memory budget of one measurement (default :func:`memory_limit_mb`).
         log: where progress lines go.
+        compile: measure with ``model.compile`` on (``torch.compile`` of the network's blocks); the warm-up
+            frames then include the compilation, so give at least one.
     Returns:
         ``meta`` (device, threads, torch, load, matmul peaks, settings), ``rows`` (one per measurement),
         ``skipped`` (model, mode, particles, reason) and ``linearity`` (:func:`linearity`).
@@ -325,6 +330,7 @@ def run_scaling(
         "max_memory_mb": limit,
         "sizes": [int(n) for n in sizes],
         "models": list(models),
+        "compile": bool(compile),
     }
     log(f"matmul peak ({dev}, {meta['threads']} threads) ...")
     meta["matmul_start"] = matmul_peak(dev, matmul_size)
@@ -340,7 +346,9 @@ def run_scaling(
                 )
                 if reason is None:
                     try:
-                        row = _measure(name, mode, particles, dev, warmup, count, batch_size, radius, spacing)
+                        row = _measure(
+                            name, mode, particles, dev, warmup, count, batch_size, radius, spacing, compile
+                        )
                     except Exception as error:  # noqa: BLE001 - only out-of-memory is a skip
                         if not _out_of_memory(error):
                             raise
@@ -380,20 +388,20 @@ def _device_name(device: torch.device) -> str:
 
 def _measure(
     name: str, mode: str, particles: int, device: torch.device, warmup: int, repeats: int, batch_size: int,
-    radius: float, spacing: float,
+    radius: float, spacing: float, compile: bool = False,
 ) -> dict:  # fmt: skip
     """One row of :func:`run_scaling`."""
     history = MODELS[name].get("history", 1)
     if mode == "inference":
         sequence, particle_type, bounds = scaling_scene(particles, history, spacing)
-        simulator = build_model(name, radius, bounds=bounds).to(device)
+        simulator = build_model(name, radius, bounds=bounds, compile=compile).to(device)
         result = measure_inference(simulator, sequence, particle_type, warmup=warmup, repeats=repeats)
         nodes, edges, per_frame, unit_ms = particles, result["num_edges"], 1, result["ms_per_frame"]
         flops = forward_flops(simulator.config, nodes, edges)["total"]
         parameters = simulator.num_parameters()
     else:
         batch, bounds = training_batch(particles, history, batch_size, spacing)
-        system = build_system(name, bounds, radius).to(device)
+        system = build_system(name, bounds, radius, compile).to(device)
         result = measure_training(system, batch, warmup=warmup, repeats=repeats)
         nodes, edges, per_frame = result["num_nodes"], result["num_edges"], batch_size
         unit_ms = result["ms_per_step"]
@@ -462,7 +470,8 @@ def format_scaling(results: dict) -> str:
     load = f"{_load(meta.get('load_average_start'))} at start, {_load(meta.get('load_average_end'))} at end"
     lines = [
         f"device {meta['device_name']} ({meta['device']}), {meta['threads']} torch threads, "
-        f"torch {meta['torch']}; load average {load}",
+        f"torch {meta['torch']}; load average {load}"
+        + ("; model.compile on (torch.compile)" if meta.get("compile") else ""),
         "ms/frame: median after warm-up, graph build included; training: one optimizer step / batch size. "
         "x linear: ms/frame over N/N_ref x ms/frame at N_ref. Memory: "
         + ("CUDA max allocated" if cuda else "CPU peak-RSS increase (lower bound)"),

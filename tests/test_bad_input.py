@@ -354,6 +354,20 @@ def test_train_settings(case, override, expected, tmp_path, capsys):
     assert not (tmp_path / "run" / "results.json").exists()
 
 
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("{rest_fraction: 2}", "preset 'small': rest_fraction must be a probability in [0, 1]"),
+        ("{rest_fractoin: 0.2}", "preset 'small': unknown field(s) ['rest_fractoin']"),
+    ],
+)
+def test_train_bad_preset_override_is_named_before_generating(override, expected, tmp_path, capsys):
+    overrides = [f"data.root={tmp_path}/new", f"data.preset_overrides={override}"]
+    message = _train(overrides, tmp_path, capsys, "train: bad preset override")
+    assert message.startswith(f"error: data.preset_overrides: {expected}")
+    assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
+
+
 def test_train_data_with_nan_is_named_before_training(dataset, tmp_path, capsys):
     _poke_nan(dataset, "train", trajectory=1, frame=5, particle=3)
     message = _train([], tmp_path, capsys, "train: NaN in the training positions", dataset)

@@ -16,9 +16,16 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.data.__main__ import main as data_main
 from gnsx.data.store import SplitReader
 from gnsx.errors import DataError
-from gnsx.mpm.generate import generate_dataset, run_scene, simulate_scene, simulate_split_item
+from gnsx.mpm.generate import (
+    generate_dataset,
+    is_rest_scene,
+    run_scene,
+    scene_rng,
+    simulate_scene,
+    simulate_split_item,
+)
 from gnsx.mpm.presets import get_preset
-from gnsx.mpm.scenes import Scene, WaterBlock, scene_particles
+from gnsx.mpm.scenes import Scene, WaterBlock, sample_rest_scene, sample_scene, scene_particles
 from gnsx.mpm.solver import MLSMPMSolver, SolverSettings
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -329,6 +336,21 @@ def test_split_items_depend_only_on_seed_split_and_index():
     assert a.num_particles != simulate_split_item(preset, 5, "valid", 1).num_particles or not np.array_equal(
         a.position[0], simulate_split_item(preset, 5, "valid", 1).position[0]
     )
+
+
+def test_rest_fraction_makes_some_training_scenes_pools_and_changes_nothing_else():
+    plain, rest = get_preset("small"), get_preset("small", rest_fraction=0.3)
+    pools = [i for i in range(100) if is_rest_scene(rest, 0, "train", i)]
+    assert 15 <= len(pools) <= 45
+    assert not any(is_rest_scene(plain, 0, "train", i) for i in range(100))
+    assert not any(is_rest_scene(get_preset("small", rest_fraction=1.0), 0, s, 0) for s in ("valid", "test"))
+    for i in range(100):  # every other scene, and the draw of its particles, is the one rest_fraction 0 makes
+        a, b = scene_rng(0, "train", i), scene_rng(0, "train", i)
+        if i in pools:
+            assert sample_rest_scene(a, rest).blocks[0].velocity == (0.0, 0.0)
+        else:
+            assert sample_scene(a, rest) == sample_scene(b, plain)
+            assert a.integers(2**63) == b.integers(2**63)
 
 
 def test_generate_dataset_writes_a_readable_dataset_independent_of_workers(tmp_path):

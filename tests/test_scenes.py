@@ -18,6 +18,7 @@ from gnsx.mpm.scenes import (
     Scene,
     WaterBlock,
     ramp_particles,
+    sample_rest_scene,
     sample_scene,
     scene_particles,
     segment_distance,
@@ -153,6 +154,38 @@ def test_sampled_scenes_respect_the_preset(name):
     # The ranges are used, not just respected.
     assert set(ramp_counts) == set(range(preset.num_ramps_range[0], preset.num_ramps_range[1] + 1))
     assert vertical > 0
+
+
+def test_rest_scenes_are_pools_at_rest_wall_to_wall_with_ramps_above():
+    preset = get_preset("small", rest_fraction=1.0)
+    lo, hi = preset.bounds
+    falling = 0
+    for seed in range(100):
+        scene = sample_rest_scene(np.random.default_rng(seed), preset)
+        pool, *rest = scene.blocks
+        assert pool.lower == (lo, lo) and pool.upper[0] == hi and pool.velocity == (0.0, 0.0)
+        assert preset.pool_depth_range[0] <= pool.size[1] <= preset.pool_depth_range[1]
+        assert len(rest) <= 1 and len(scene.ramps) >= 1
+        for block in rest:  # a block starts clear above the pool, inside the margins
+            falling += 1
+            assert block.lower[1] >= pool.upper[1] + preset.ramp_clearance
+            assert block.upper[1] <= hi - preset.wall_margin
+            assert preset.speed_range[0] <= math.hypot(*block.velocity) <= preset.speed_range[1]
+        for p0, p1 in scene.ramps:
+            for block in scene.blocks:
+                gap = segment_rect_distance(
+                    np.array(p0), np.array(p1), np.array(block.lower), np.array(block.upper)
+                )
+                assert gap >= preset.ramp_clearance
+    assert 25 < falling < 75  # rest_block_probability 0.5, both kinds drawn
+    with pytest.raises(ValueError, match="deepest pool"):
+        sample_rest_scene(np.random.default_rng(0), get_preset("small", pool_depth_range=(0.1, 0.8)))
+
+
+@pytest.mark.parametrize("field", ["rest_fraction", "rest_block_probability"])
+def test_rest_probabilities_are_validated(field):
+    with pytest.raises(ValueError, match=f"{field} must be a probability"):
+        get_preset("small", **{field: 1.5})
 
 
 def test_sampler_is_deterministic_per_seed():

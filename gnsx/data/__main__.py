@@ -3,7 +3,7 @@
 Subcommands::
 
     python -m gnsx.data generate --preset small|waterramps --out DIR [--seed N] [--workers 2]
-                                 [--train N --valid N --test N] [--overwrite]
+                                 [--train N --valid N --test N] [--rest-fraction F] [--overwrite]
         Simulate WaterRamps-like scenes with gnsx's MPM solver and write a gnsx dataset to DIR.
         --train/--valid/--test override the preset's number of trajectories per split. A killed run resumes:
         finished trajectories are kept in DIR.partial/ until the dataset is written, and rerunning the same
@@ -77,6 +77,12 @@ def _parser() -> argparse.ArgumentParser:
         gen.add_argument(
             f"--{split}", type=int, metavar="N", help=f"number of {split} trajectories (preset's)"
         )
+    gen.add_argument(
+        "--rest-fraction",
+        type=float,
+        metavar="F",
+        help="share of training scenes that start as a pool at rest (preset's, 0 for both presets)",
+    )
     gen.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
     gen.set_defaults(run=_generate)
 
@@ -132,6 +138,11 @@ def _generate(args: argparse.Namespace) -> int:
         raise DataError("--train/--valid/--test", f"trajectory counts must be >= 0, got {counts}")
     if counts:
         preset = dataclasses.replace(preset, trajectories={**preset.trajectories, **counts})
+    if args.rest_fraction is not None:
+        try:
+            preset = dataclasses.replace(preset, rest_fraction=args.rest_fraction)
+        except ValueError as e:
+            raise DataError("--rest-fraction", str(e)) from None
     out = generate_dataset(
         args.out, preset, seed=args.seed, workers=args.workers, overwrite=args.overwrite, progress=True
     )

@@ -39,7 +39,7 @@ from gnsx.data.store import write_dataset
 from gnsx.data.trajectory import Trajectory
 from gnsx.errors import DataError
 from gnsx.mpm.presets import Preset, get_preset
-from gnsx.mpm.scenes import Scene, ramp_particles, sample_scene, water_particles
+from gnsx.mpm.scenes import Scene, ramp_particles, sample_rest_scene, sample_scene, water_particles
 from gnsx.mpm.solver import MLSMPMSolver
 
 log = logging.getLogger("gnsx")
@@ -53,6 +53,8 @@ _CACHED_FILE = "{index:06d}.npz"
 # Preset fields that do not change any trajectory: the counts only say how many to generate (trajectory i of
 # a split is the same in a 100- and a 400-trajectory dataset), so a cache serves a rerun with other counts.
 _FIELDS_NOT_IN_TRAJECTORIES = ("trajectories",)
+#: The fourth seed word of :func:`rest_rng` (scene_rng's seeds have three).
+_REST_STREAM = 1
 
 
 def check_scene(scene: Scene, preset: Preset, where: str = "scene") -> None:
@@ -153,10 +155,27 @@ def scene_rng(seed: int, split: str, index: int) -> np.random.Generator:
     return np.random.default_rng([seed, SPLITS.index(split), index])
 
 
+def rest_rng(seed: int, split: str, index: int) -> np.random.Generator:
+    """The generator that decides whether trajectory ``index`` of ``split`` is a pool at rest.
+
+    A stream apart from :func:`scene_rng`'s, so ``preset.rest_fraction`` changes which scenes are pools but
+    not what any other scene is.
+    """
+    return np.random.default_rng([seed, SPLITS.index(split), index, _REST_STREAM])
+
+
+def is_rest_scene(preset: Preset, seed: int, split: str, index: int) -> bool:
+    """Whether trajectory ``index`` of ``split`` starts as a pool at rest (training split only)."""
+    if split != "train" or preset.rest_fraction <= 0.0:
+        return False
+    return bool(rest_rng(seed, split, index).uniform() < preset.rest_fraction)
+
+
 def simulate_split_item(preset: Preset, seed: int, split: str, index: int) -> Trajectory:
     """Trajectory ``index`` of ``split`` in the dataset generated with ``seed`` (key = ``index``)."""
     rng = scene_rng(seed, split, index)
-    scene = sample_scene(rng, preset)
+    sample = sample_rest_scene if is_rest_scene(preset, seed, split, index) else sample_scene
+    scene = sample(rng, preset)
     traj = simulate_scene(scene, preset, seed=int(rng.integers(2**63)))
     traj.key = index
     return traj

@@ -46,6 +46,13 @@ class Preset:
         ramp_length_range: ``(min, max)`` ramp length.
         ramp_max_angle: non-vertical ramps get an angle uniform in ``[-ramp_max_angle, ramp_max_angle]``.
         vertical_ramp_probability: chance that a ramp is vertical.
+        rest_fraction: chance that a *training* scene is a pool at rest
+            (:func:`~gnsx.mpm.scenes.sample_rest_scene`) instead of a falling block; validation and test
+            scenes never are, so presets that differ only here share those splits. Drawn from a stream of its
+            own (:func:`~gnsx.mpm.generate.rest_rng`): 0 draws nothing, and a training scene that is not a
+            pool is the same as with 0.
+        pool_depth_range: ``(min, max)`` depth of those pools.
+        rest_block_probability: chance that such a pool also gets a block falling into it.
         default_connectivity_radius: the neighbour radius written to the metadata.
         wall_margin: blocks and ramps keep at least this distance from the walls.
         jitter: water particles move up to ``jitter * particle_spacing`` per axis off their lattice point.
@@ -74,6 +81,9 @@ class Preset:
     ramp_length_range: tuple[float, float] = (0.1, 0.6)
     ramp_max_angle: float = 0.3
     vertical_ramp_probability: float = 0.15
+    rest_fraction: float = 0.0
+    pool_depth_range: tuple[float, float] = (0.03, 0.25)
+    rest_block_probability: float = 0.5
     ramp_spacing: float = 0.01
     wall_margin: float = 0.02
     jitter: float = 0.35
@@ -103,10 +113,14 @@ class Preset:
             "speed_range",
             "num_ramps_range",
             "ramp_length_range",
+            "pool_depth_range",
         ):
             lo, hi = getattr(self, key)
             if not 0 <= lo <= hi:
                 raise ValueError(f"preset {self.name!r}: {key} must be (min, max) with 0 <= min <= max")
+        for key in ("rest_fraction", "rest_block_probability"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise ValueError(f"preset {self.name!r}: {key} must be a probability in [0, 1]")
         self.solver_settings()  # validates the solver fields
 
     def solver_settings(self) -> SolverSettings:

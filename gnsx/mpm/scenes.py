@@ -239,23 +239,71 @@ def sample_scene(rng: np.random.Generator, preset: Preset) -> Scene:
         speed = rng.uniform(*preset.speed_range)
         angle = rng.uniform(0.0, 2.0 * math.pi)
         block = WaterBlock((x, y), (x + w, y + h), (speed * math.cos(angle), speed * math.sin(angle)))
-        num_ramps = int(rng.integers(preset.num_ramps_range[0], preset.num_ramps_range[1] + 1))
-        ramps = []
-        for _ in range(num_ramps):
-            ramp = _sample_ramp(rng, preset, block, lo_m, hi_m)
-            if ramp is not None:
-                ramps.append(ramp)
-        if ramps or num_ramps == 0:
+        ramps = _sample_ramps(rng, preset, [block], lo_m, hi_m)
+        if ramps is not None:
             return Scene([block], ramps)
     raise ValueError(
         f"preset {preset.name!r}: no scene with a ramp clear of the water in {_SCENE_TRIES} tries"
     )
 
 
+def sample_rest_scene(rng: np.random.Generator, preset: Preset) -> Scene:
+    """Draw a scene whose water starts at rest: a pool on the floor, wall to wall.
+
+    Why: in :func:`sample_scene`'s scenes water is only ever falling or sloshing, so a model trained on them
+    alone has never seen water that should stay still; a pool at rest then drifts ~180x the solver's speed
+    (docs/hardcases.md). The pool's depth is uniform in ``preset.pool_depth_range``; with probability
+    ``preset.rest_block_probability`` a block drawn as in :func:`sample_scene` (sizes, speeds) starts above
+    the pool, at least ``preset.ramp_clearance`` clear of it, and falls in. Ramps are drawn as in
+    :func:`sample_scene`, clear of all the water, so they hang above the pool.
+
+    Raises:
+        ValueError: the preset's ranges make scenes impossible (a pool deeper than the box).
+    """
+    lo, hi = preset.bounds
+    lo_m, hi_m = lo + preset.wall_margin, hi - preset.wall_margin
+    if preset.pool_depth_range[1] >= hi - lo:
+        raise ValueError(f"preset {preset.name!r}: the deepest pool does not fit between the walls")
+    for _ in range(_SCENE_TRIES):
+        depth = rng.uniform(*preset.pool_depth_range)
+        blocks = [WaterBlock((lo, lo), (hi, lo + depth))]
+        if rng.uniform() < preset.rest_block_probability:
+            w = rng.uniform(*preset.block_width_range)
+            h = rng.uniform(*preset.block_height_range)
+            y_min = lo + depth + preset.ramp_clearance
+            if y_min + h <= hi_m:  # otherwise the pool leaves no room: the scene keeps the pool alone
+                x = rng.uniform(lo_m, hi_m - w)
+                y = rng.uniform(y_min, hi_m - h)
+                speed = rng.uniform(*preset.speed_range)
+                angle = rng.uniform(0.0, 2.0 * math.pi)
+                velocity = (speed * math.cos(angle), speed * math.sin(angle))
+                blocks.append(WaterBlock((x, y), (x + w, y + h), velocity))
+        ramps = _sample_ramps(rng, preset, blocks, lo_m, hi_m)
+        if ramps is not None:
+            return Scene(blocks, ramps)
+    raise ValueError(
+        f"preset {preset.name!r}: no pool scene with a ramp clear of the water in {_SCENE_TRIES} tries"
+    )
+
+
+def _sample_ramps(
+    rng: np.random.Generator, preset: Preset, blocks: Sequence[WaterBlock], lo: float, hi: float
+) -> list[tuple[Point, Point]] | None:
+    """``num_ramps_range`` ramps clear of ``blocks`` (:func:`_sample_ramp`), or None when all were asked
+    for and none could be placed."""
+    num_ramps = int(rng.integers(preset.num_ramps_range[0], preset.num_ramps_range[1] + 1))
+    ramps = []
+    for _ in range(num_ramps):
+        ramp = _sample_ramp(rng, preset, blocks, lo, hi)
+        if ramp is not None:
+            ramps.append(ramp)
+    return ramps if ramps or num_ramps == 0 else None
+
+
 def _sample_ramp(
-    rng: np.random.Generator, preset: Preset, block: WaterBlock, lo: float, hi: float
+    rng: np.random.Generator, preset: Preset, blocks: Sequence[WaterBlock], lo: float, hi: float
 ) -> tuple[Point, Point] | None:
-    """One ramp inside ``[lo, hi]^2`` and at least ``preset.ramp_clearance`` from ``block``, or None."""
+    """One ramp inside ``[lo, hi]^2`` and at least ``preset.ramp_clearance`` from every block, or None."""
     for _ in range(_RAMP_TRIES):
         length = rng.uniform(*preset.ramp_length_range)
         if rng.uniform() < preset.vertical_ramp_probability:
@@ -266,7 +314,7 @@ def _sample_ramp(
         reach = np.abs(half)
         centre = rng.uniform(lo + reach, hi - reach)
         p0, p1 = centre - half, centre + half
-        gap = segment_rect_distance(p0, p1, np.asarray(block.lower), np.asarray(block.upper))
+        gap = min(segment_rect_distance(p0, p1, np.asarray(b.lower), np.asarray(b.upper)) for b in blocks)
         if gap >= preset.ramp_clearance:
             return (float(p0[0]), float(p0[1])), (float(p1[0]), float(p1[1]))
     return None
