@@ -188,6 +188,19 @@ def test_cli_prints_table_writes_json_and_plot(tmp_path, capsys):
     assert path.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
+def test_cli_compile_measures_the_compiled_model(tmp_path, capsys):
+    # torch.compile of the blocks for inference and training (~30-60 s of compiling: slow).
+    path = tmp_path / "compiled.json"
+    argv = ["--sizes", "100", "--models", "simplified", "--repeats", "1", "--warmup", "1", "--compile",
+            "--matmul-size", "128", "--json", str(path)]  # fmt: skip
+    assert benchmark.main(argv) == 0
+    assert "model.compile on" in capsys.readouterr().out
+    results = json.loads(path.read_text())
+    assert results["meta"]["compile"] is True and len(results["rows"]) == 2
+    assert build_system("simplified", [[0.1, 0.9]] * 2, compile=True).simulator.config["compile"] is True
+
+
 def test_cli_one_size_past_the_waterramps_box(capsys):
     # Issue 10: --particles past ~2.5k used to refuse (the packed scene did not fit WaterRamps' box).
     argv = ["--particles", "6000", "--models", "simplified", "--repeats", "1", "--warmup", "0"]
