@@ -101,8 +101,10 @@ def ensure_dataset(data_cfg: DictConfig) -> Path:
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
     try:
         preset = get_preset(data_cfg.preset, **overrides)
-    except (KeyError, ValueError) as e:
-        raise ConfigError("data.preset_overrides", str(e.args[0]) if e.args else str(e)) from None
+    except KeyError as e:  # the preset's name
+        raise ConfigError(f"data.preset={data_cfg.preset}", str(e.args[0])) from None
+    except ValueError as e:  # a field or value of the overrides
+        raise ConfigError("data.preset_overrides", str(e)) from None
     log.info("Generating the '%s' preset %s into %s (first use)", preset.name, preset.trajectories, root)
     generate_dataset(root, preset, seed=data_cfg.generate_seed)
     return root

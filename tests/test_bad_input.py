@@ -368,6 +368,15 @@ def test_train_bad_preset_override_is_named_before_generating(override, expected
     assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
 
 
+def test_train_unknown_preset_names_data_preset(tmp_path, capsys):
+    overrides = [f"data.root={tmp_path}/new", "data.preset=bogus"]
+    message = _train(overrides, tmp_path, capsys, "train: unknown preset")
+    assert message.startswith(
+        "error: data.preset=bogus: unknown preset 'bogus'; known presets: small, waterramps"
+    )
+    assert not (tmp_path / "new").exists()
+
+
 def test_train_data_with_nan_is_named_before_training(dataset, tmp_path, capsys):
     _poke_nan(dataset, "train", trajectory=1, frame=5, particle=3)
     message = _train([], tmp_path, capsys, "train: NaN in the training positions", dataset)

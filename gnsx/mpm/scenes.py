@@ -236,9 +236,7 @@ def sample_scene(rng: np.random.Generator, preset: Preset) -> Scene:
         h = rng.uniform(*preset.block_height_range)
         x = rng.uniform(lo_m, hi_m - w)
         y = rng.uniform(lo_m, hi_m - h)
-        speed = rng.uniform(*preset.speed_range)
-        angle = rng.uniform(0.0, 2.0 * math.pi)
-        block = WaterBlock((x, y), (x + w, y + h), (speed * math.cos(angle), speed * math.sin(angle)))
+        block = WaterBlock((x, y), (x + w, y + h), _launch_velocity(rng, preset))
         ramps = _sample_ramps(rng, preset, [block], lo_m, hi_m)
         if ramps is not None:
             return Scene([block], ramps)
@@ -274,16 +272,20 @@ def sample_rest_scene(rng: np.random.Generator, preset: Preset) -> Scene:
             if y_min + h <= hi_m:  # otherwise the pool leaves no room: the scene keeps the pool alone
                 x = rng.uniform(lo_m, hi_m - w)
                 y = rng.uniform(y_min, hi_m - h)
-                speed = rng.uniform(*preset.speed_range)
-                angle = rng.uniform(0.0, 2.0 * math.pi)
-                velocity = (speed * math.cos(angle), speed * math.sin(angle))
-                blocks.append(WaterBlock((x, y), (x + w, y + h), velocity))
+                blocks.append(WaterBlock((x, y), (x + w, y + h), _launch_velocity(rng, preset)))
         ramps = _sample_ramps(rng, preset, blocks, lo_m, hi_m)
         if ramps is not None:
             return Scene(blocks, ramps)
     raise ValueError(
         f"preset {preset.name!r}: no pool scene with a ramp clear of the water in {_SCENE_TRIES} tries"
     )
+
+
+def _launch_velocity(rng: np.random.Generator, preset: Preset) -> Point:
+    """A block's initial velocity, m/s: speed uniform in ``preset.speed_range``, direction uniform."""
+    speed = rng.uniform(*preset.speed_range)
+    angle = rng.uniform(0.0, 2.0 * math.pi)
+    return (speed * math.cos(angle), speed * math.sin(angle))
 
 
 def _sample_ramps(
