@@ -64,6 +64,9 @@ def check_train_config(cfg: DictConfig) -> None:
     noise = check_number(_get(cfg, "train.noise_std"), "train.noise_std", allow_none=True)
     if noise is not None and noise < 0:
         raise ConfigError(f"train.noise_std={noise}", "must be >= 0 (or null: the model's)")
+    correction = check_number(_get(cfg, "train.noise_correction", 0.0), "train.noise_correction")
+    if not 0.0 <= correction <= 1.0:
+        raise ConfigError(f"train.noise_correction={correction}", "must be in [0, 1]")
     for key in ("gradient_clip_val", "checkpoint_every_minutes"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True, allow_none=True)
     from gnsx.system import LOSSES

@@ -125,6 +125,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         acc_std=list(meta.acc_std),
         noise_std=float(train.noise_std if train.noise_std is not None else cfg.model.noise_std),
         noise_decay=float(train.noise_decay),
+        noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
         lr_init=float(train.lr_init),
         lr_final=float(train.lr_final),
         lr_decay_start=int(train.lr_decay_start),

@@ -58,6 +58,8 @@ class GNSSystem(L.LightningModule):
             (statistics are per-frame differences, data units).
         noise_std: std of the training noise on the most recent velocity at the start of training.
         noise_decay: factor applied to the noise std by the end of the LR decay (paper: 0.4).
+        noise_correction: share of the input position noise the target undoes (0: DeepMind's; 1: the
+            target is the true next position; :meth:`LearnedSimulator.noisy_training_pair`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
@@ -82,6 +84,7 @@ class GNSSystem(L.LightningModule):
         acc_std: list[float],
         noise_std: float = 3.0e-4,
         noise_decay: float = 0.4,
+        noise_correction: float = 0.0,
         lr_init: float = 1.0e-4,
         lr_final: float = 1.0e-6,
         lr_decay_start: int = 1_000_000,
@@ -94,6 +97,8 @@ class GNSSystem(L.LightningModule):
         super().__init__()
         if loss not in LOSSES:
             raise ValueError(f"GNSSystem: loss must be one of {LOSSES}, got {loss!r}")
+        if not 0.0 <= noise_correction <= 1.0:
+            raise ValueError(f"GNSSystem: noise_correction must be in [0, 1], got {noise_correction}")
         if not huber_delta > 0:
             raise ValueError(f"GNSSystem: huber_delta must be > 0, got {huber_delta}")
         self.save_hyperparameters()
@@ -151,8 +156,14 @@ class GNSSystem(L.LightningModule):
     def training_step(self, batch, batch_idx: int) -> torch.Tensor:
         self._skipping = False
         std = self.current_noise_std()
+        correction = self.hparams.get("noise_correction", 0.0)  # absent from checkpoints before 2026-12-01
         predicted, target = self.simulator.noisy_training_pair(
-            batch.position_sequence, batch.next_position, batch.particle_type, std, batch=batch.batch
+            batch.position_sequence,
+            batch.next_position,
+            batch.particle_type,
+            std,
+            batch.batch,
+            position_correction=correction,
         )
         # Averaged over dynamic particles: static particles are never moved by the model, so they are not in
         # the loss.

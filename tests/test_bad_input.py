@@ -334,6 +334,11 @@ def _train(overrides: list[str], tmp_path, capsys, case: str, dataset: Path | No
             "model.type_encoding=bogus",
             "error: model.type_encoding=bogus: must be one of ('scalar', 'embedding'), got 'bogus'",
         ),
+        (
+            "train: noise correction above 1",
+            "train.noise_correction=1.5",
+            "error: train.noise_correction=1.5: must be in [0, 1]",
+        ),
         ("train: unknown loss", "train.loss=l1", "error: train.loss=l1: expected one of mse, huber"),
         ("train: bad max_time", "train.max_time=soon", "error: train.max_time=soon: expected DD:HH:MM:SS"),
         (

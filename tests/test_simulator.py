@@ -189,6 +189,30 @@ def test_noisy_target_corrects_velocity_noise_only(name):
     assert torch.equal(target[static], clean[static])
 
 
+@pytest.mark.parametrize("correction", [0.5, 1.0])
+def test_noise_position_correction_leads_the_target_back_to_the_truth(correction):
+    simulator = make_simulator(SIMPLIFIED)
+    positions, types = scene(frames=simulator.input_frames + 1)
+    window, next_position = positions[:, :-1], positions[:, -1]
+    pair = lambda c: simulator.noisy_training_pair(  # noqa: E731
+        window, next_position, types, 3e-4, generator=torch.Generator().manual_seed(7), position_correction=c
+    )
+    predicted, deepmind = pair(0.0)
+    predicted_c, corrected = pair(correction)
+    assert torch.equal(predicted, predicted_c)  # the input is the same; only the target moves
+    noise = random_walk_noise(window, 3e-4, types, generator=torch.Generator().manual_seed(7))
+    # H = 1: a~ = a - eps - correction * eps; static particles have no noise, so no correction.
+    expected = deepmind - correction * noise[:, -1] / simulator.acc_std
+    assert torch.allclose(corrected, expected, atol=2e-3)
+    if correction == 1.0:  # predicting the target acceleration lands on the true next position
+        noisy = window + noise
+        acceleration = corrected * simulator.acc_std + simulator.acc_mean
+        landed = noisy[:, -1] + (noisy[:, -1] - noisy[:, -2]) + acceleration
+        assert torch.allclose(landed, next_position, atol=1e-6)
+    with pytest.raises(ValueError, match="position_correction"):
+        pair(1.5)
+
+
 def test_batched_forward_equals_single_forwards():
     simulator = make_simulator(SIMPLIFIED)
     first, types_a = scene(seed=1, frames=2)

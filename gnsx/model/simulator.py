@@ -481,13 +481,18 @@ class LearnedSimulator(nn.Module):
         noise_std: float,
         batch: Tensor | None = None,
         generator: torch.Generator | None = None,
+        position_correction: float = 0.0,
     ) -> tuple[Tensor, Tensor]:
         """Prediction and target on noise-corrupted inputs (DeepMind's training step).
 
-        The input gets :func:`random_walk_noise`; the target next position is shifted by the noise of the
-        most recent position, so the target acceleration undoes the *velocity* noise but the model is not
-        asked to undo the position noise (which it cannot observe, positions being absent from the
-        features). With H = 1: ``a~ = a - eps``.
+        The input gets :func:`random_walk_noise`; the target next position is shifted by ``1 -
+        position_correction`` times the noise of the most recent position. With the default 0 (DeepMind's)
+        the target acceleration undoes the *velocity* noise but the model is not asked to undo the position
+        noise (absolute positions are not among the features): with H = 1, ``a~ = a - eps``. With 1 the
+        target leads back to the true next position, ``a~ = a - 2 eps``: the model is asked to undo a
+        particle's displacement from its neighbours too, which it can see in its edge vectors, and so
+        learns a restoring force against the compression it never sees in the data (a fluid compressed in
+        a rollout otherwise stays compressed).
 
         Args:
             position_sequence: ``[N, history + 1, D]`` clean positions, oldest first.
@@ -496,15 +501,18 @@ class LearnedSimulator(nn.Module):
             noise_std: std of the noise on the most recent velocity (per frame); 0 disables noise.
             batch: ``[N]`` graph ids or ``None``.
             generator: optional torch generator for the noise.
+            position_correction: share of the most recent position noise the target undoes, in [0, 1].
 
         Returns:
             ``(predicted, target)``, both ``[N, D]`` normalised accelerations. The loss (masking static
             particles) is the caller's.
         """
+        if not 0.0 <= position_correction <= 1.0:
+            raise ValueError(f"position_correction must be in [0, 1], got {position_correction}")
         if noise_std > 0:
             noise = random_walk_noise(position_sequence, noise_std, particle_type, generator=generator)
             position_sequence = position_sequence + noise
-            next_position = next_position + noise[:, -1]
+            next_position = next_position + (1.0 - position_correction) * noise[:, -1]
         predicted = self(position_sequence, particle_type, batch)
         target = self.normalized_target(next_position, position_sequence)
         return predicted, target
