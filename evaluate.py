@@ -57,6 +57,7 @@ def main(cfg: DictConfig) -> float:
             strip_count=cfg.render.strip_count,
             loggers=loggers,
             allow_mismatch=bool(OmegaConf.select(cfg, "allow_mismatch", default=False)),
+            incompressible=bool(OmegaConf.select(cfg, "incompressible", default=True)),
         )
         for logger in loggers:
             logger.finalize("success")

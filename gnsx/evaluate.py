@@ -71,7 +71,7 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
     options = {
         key: cfg.evaluate.get(key, default)
         for key, default in (("emd_every", 10), ("emd_method", "auto"), ("onestep_stride", 10),
-                             ("timing_repeats", 20))
+                             ("timing_repeats", 20), ("incompressible", True))
     }  # fmt: skip
     per_frame: list[dict] = []
     summary, rows, first = evaluate_simulator(
@@ -91,6 +91,7 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
         "parameters": simulator.num_parameters(),
         "test": summary,
         "rows": rows,
+        "incompressible": bool(options["incompressible"]),
     }
     write_csv(run_dir / "test_per_frame.csv", per_frame)
     suffix = cfg.evaluate.render_format
@@ -147,13 +148,14 @@ def evaluate_checkpoints(
     strip_count: int = 7,
     loggers: Sequence = (),
     allow_mismatch: bool = False,
+    incompressible: bool = True,
 ) -> dict:
     """Evaluate checkpoints on every trajectory of a split and write what a user needs to judge them.
 
     Writes into ``out_dir``:
 
-    * ``results.json``: ``{"split", "data_root", "models": [{"label", "folder", "checkpoint", "parameters",
-      "summary", "rows"}], "comparisons", "outputs"}`` (summary and rows as
+    * ``results.json``: ``{"split", "data_root", "incompressible", "models": [{"label", "folder",
+      "checkpoint", "parameters", "summary", "rows"}], "comparisons", "outputs"}`` (summary and rows as
       :func:`~gnsx.scoring.evaluate_simulator`'s; ``comparisons``: with two or more models, each later model
       against the first, :func:`~gnsx.spread.compare` on ``rollout_mse`` and ``emd`` plus ``"a"``, ``"b"``
       (the labels), also printed);
@@ -172,6 +174,8 @@ def evaluate_checkpoints(
         checkpoints: ``.ckpt`` files or run directories.
         data_root: the gnsx dataset (its metadata gives bounds, dt and the neighbour radius).
         labels: one per checkpoint (default :func:`~gnsx.checkpoints.model_label`, made unique).
+        incompressible: roll the models out with the density limit (:mod:`gnsx.model.density`); recorded in
+            ``results.json``.
         allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
             connectivity radius more than 2x apart, :func:`~gnsx.checkpoints.check_fits`); refused otherwise.
         Others: see :func:`~gnsx.scoring.score_trajectory` and :mod:`gnsx.render`.
@@ -198,7 +202,8 @@ def evaluate_checkpoints(
             check_fits(simulator, str(checkpoint), metadata.bounds, metadata.default_connectivity_radius,
                        metadata.dim, target)  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"split": split, "data_root": str(data_root), "models": []}
+    results = {"split": split, "data_root": str(data_root), "incompressible": bool(incompressible)}
+    results["models"] = []
     panels: list[np.ndarray] = []
     titles: list[str] = []
     shown: dict | None = None
@@ -251,6 +256,7 @@ def evaluate_checkpoints(
             onestep_stride=onestep_stride,
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
+            incompressible=incompressible,
             on_trajectory=keep,
         )
         print(format_table(rows, summary, f"{split} rollouts: {label} ({checkpoint})"))

@@ -298,6 +298,7 @@ def score_trajectory(
     timing_warmup: int = 3,
     timing_repeats: int = 20,
     constrain: bool = True,
+    incompressible: bool = True,
 ) -> TrajectoryResult:
     """Roll out one trajectory from its first ``history + 1`` frames and compute every metric.
 
@@ -314,6 +315,8 @@ def score_trajectory(
             ``timing_repeats=0`` skips it (``ms_per_frame`` and ``peak_memory_mb`` are then NaN/None).
         constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`);
             ``False`` scores the raw model. The baseline is always held.
+        incompressible: with ``constrain``, also the density limit (:class:`gnsx.model.density.DensityLimit`,
+            the model's rollout only).
     """
     device = simulator.acc_std.device
     position = position.to(device=device, dtype=torch.float32)
@@ -333,7 +336,19 @@ def score_trajectory(
         timing = measure_inference(simulator, initial, particle_type, timing_warmup, timing_repeats)
     start = time.perf_counter()
     predicted = (
-        torch.cat([position[:frames], rollout(simulator, initial, particle_type, steps, constrain=constrain)])
+        torch.cat(
+            [
+                position[:frames],
+                rollout(
+                    simulator,
+                    initial,
+                    particle_type,
+                    steps,
+                    constrain=constrain,
+                    incompressible=incompressible,
+                ),
+            ]
+        )
         .cpu()
         .numpy()
     )
@@ -426,6 +441,7 @@ def evaluate_simulator(
     timing_warmup: int = 3,
     timing_repeats: int = 20,
     constrain: bool = True,
+    incompressible: bool = True,
     on_trajectory: Callable[[TrajectoryResult], None] | None = None,
 ) -> tuple[dict, list[dict], dict | None]:
     """Roll out and score every trajectory (see :func:`score_trajectory` for the arguments).
@@ -462,6 +478,7 @@ def evaluate_simulator(
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
             constrain=constrain,
+            incompressible=incompressible,
         )
         rows.append(result.row)
         if keep_first and first is None:

@@ -2,7 +2,10 @@
 
 Both apply the same :class:`gnsx.model.boundary.Boundary` to every step (box walls, static segments), so a
 rollout never leaves the box or tunnels through a ramp, and the model is scored against a baseline held to the
-same physics. ``constrain=False`` gives the raw model (what it would do on its own).
+same walls. The model's rollout also gets the :class:`gnsx.model.density.DensityLimit` (water does not
+compress; ``incompressible=False`` leaves it out); the baseline does not, since with it constant velocity plus
+gravity would be a position-based fluid solver, not physics-free. ``constrain=False`` gives the raw model
+(what it would do on its own).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from tqdm import tqdm
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
+from gnsx.model.density import DensityLimit
 from gnsx.model.simulator import LearnedSimulator
 
 
@@ -27,6 +31,7 @@ def rollout(
     static_positions: Tensor | None = None,
     progress: bool = False,
     constrain: bool = True,
+    incompressible: bool = True,
 ) -> Tensor:
     """Predict ``num_steps`` frames by feeding each prediction back as input.
 
@@ -42,6 +47,9 @@ def rollout(
         progress: show a tqdm progress bar.
         constrain: apply the scene's :class:`Boundary` (the model's box, segments between the static
             particles of the last input frame) to every predicted frame; ``False``: the raw model.
+        incompressible: with ``constrain``, also apply the scene's :class:`DensityLimit` to every predicted
+            frame (water denser than its rest density is spread back, before the boundary); ``False``: the
+            boundary alone.
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
@@ -63,12 +71,17 @@ def rollout(
     boundary = None
     if constrain:
         boundary = Boundary.from_particles(simulator.bounds.cpu(), initial_positions[:, -1], particle_type)
+    limit = None
+    if constrain and incompressible:
+        limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, float(simulator.radius))
     window = initial_positions
     predictions = []
     for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
         next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
         if static_positions is not None:
             next_position = torch.where(static, static_positions[step], next_position)
+        if limit is not None:
+            next_position = limit.apply(next_position, dynamic)
         if boundary is not None:
             next_position = boundary.apply(window[:, -1], next_position, dynamic)
         predictions.append(next_position)
