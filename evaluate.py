@@ -58,6 +58,7 @@ def main(cfg: DictConfig) -> float:
             loggers=loggers,
             allow_mismatch=bool(OmegaConf.select(cfg, "allow_mismatch", default=False)),
             incompressible=bool(OmegaConf.select(cfg, "incompressible", default=True)),
+            hold_rest=bool(OmegaConf.select(cfg, "hold_rest", default=True)),
         )
         for logger in loggers:
             logger.finalize("success")

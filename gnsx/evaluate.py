@@ -71,7 +71,8 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
     options = {
         key: cfg.evaluate.get(key, default)
         for key, default in (("emd_every", 10), ("emd_method", "auto"), ("onestep_stride", 10),
-                             ("timing_repeats", 20), ("incompressible", True))
+                             ("timing_repeats", 20), ("incompressible", True),
+                             ("hold_rest", True))
     }  # fmt: skip
     per_frame: list[dict] = []
     summary, rows, first = evaluate_simulator(
@@ -92,6 +93,7 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
         "test": summary,
         "rows": rows,
         "incompressible": bool(options["incompressible"]),
+        "hold_rest": bool(options["hold_rest"]),
     }
     write_csv(run_dir / "test_per_frame.csv", per_frame)
     suffix = cfg.evaluate.render_format
@@ -149,12 +151,13 @@ def evaluate_checkpoints(
     loggers: Sequence = (),
     allow_mismatch: bool = False,
     incompressible: bool = True,
+    hold_rest: bool = True,
 ) -> dict:
     """Evaluate checkpoints on every trajectory of a split and write what a user needs to judge them.
 
     Writes into ``out_dir``:
 
-    * ``results.json``: ``{"split", "data_root", "incompressible", "models": [{"label", "folder",
+    * ``results.json``: ``{"split", "data_root", "incompressible", "hold_rest", "models": [{"label", "folder",
       "checkpoint", "parameters", "summary", "rows"}], "comparisons", "outputs"}`` (summary and rows as
       :func:`~gnsx.scoring.evaluate_simulator`'s; ``comparisons``: with two or more models, each later model
       against the first, :func:`~gnsx.spread.compare` on ``rollout_mse`` and ``emd`` plus ``"a"``, ``"b"``
@@ -176,6 +179,7 @@ def evaluate_checkpoints(
         labels: one per checkpoint (default :func:`~gnsx.checkpoints.model_label`, made unique).
         incompressible: roll the models out with the density limit (:mod:`gnsx.model.density`); recorded in
             ``results.json``.
+        hold_rest: roll the models out holding water at rest (:mod:`gnsx.model.rest`); recorded too.
         allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
             connectivity radius more than 2x apart, :func:`~gnsx.checkpoints.check_fits`); refused otherwise.
         Others: see :func:`~gnsx.scoring.score_trajectory` and :mod:`gnsx.render`.
@@ -202,7 +206,8 @@ def evaluate_checkpoints(
             check_fits(simulator, str(checkpoint), metadata.bounds, metadata.default_connectivity_radius,
                        metadata.dim, target)  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"split": split, "data_root": str(data_root), "incompressible": bool(incompressible)}
+    results = {"split": split, "data_root": str(data_root), "incompressible": bool(incompressible),
+               "hold_rest": bool(hold_rest)}  # fmt: skip
     results["models"] = []
     panels: list[np.ndarray] = []
     titles: list[str] = []
@@ -257,6 +262,7 @@ def evaluate_checkpoints(
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
             incompressible=incompressible,
+            hold_rest=hold_rest,
             on_trajectory=keep,
         )
         print(format_table(rows, summary, f"{split} rollouts: {label} ({checkpoint})"))

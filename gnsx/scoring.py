@@ -299,6 +299,7 @@ def score_trajectory(
     timing_repeats: int = 20,
     constrain: bool = True,
     incompressible: bool = True,
+    hold_rest: bool = True,
 ) -> TrajectoryResult:
     """Roll out one trajectory from its first ``history + 1`` frames and compute every metric.
 
@@ -317,6 +318,7 @@ def score_trajectory(
             ``False`` scores the raw model. The baseline is always held.
         incompressible: with ``constrain``, also the density limit (:class:`gnsx.model.density.DensityLimit`,
             the model's rollout only).
+        hold_rest: with ``constrain``, also hold water at rest (:class:`gnsx.model.rest.RestHold`).
     """
     device = simulator.acc_std.device
     position = position.to(device=device, dtype=torch.float32)
@@ -346,6 +348,7 @@ def score_trajectory(
                     steps,
                     constrain=constrain,
                     incompressible=incompressible,
+                    hold_rest=hold_rest,
                 ),
             ]
         )
@@ -442,6 +445,7 @@ def evaluate_simulator(
     timing_repeats: int = 20,
     constrain: bool = True,
     incompressible: bool = True,
+    hold_rest: bool = True,
     on_trajectory: Callable[[TrajectoryResult], None] | None = None,
 ) -> tuple[dict, list[dict], dict | None]:
     """Roll out and score every trajectory (see :func:`score_trajectory` for the arguments).
@@ -479,6 +483,7 @@ def evaluate_simulator(
             timing_repeats=timing_repeats,
             constrain=constrain,
             incompressible=incompressible,
+            hold_rest=hold_rest,
         )
         rows.append(result.row)
         if keep_first and first is None:

@@ -78,6 +78,7 @@ def test_shipped_weights_reproduce_their_test_rollout(shipped):
         timing_repeats=0,
         # Scored before the density limit existed (2026-12-01): its results.json has no such key.
         incompressible=bool(results.get("incompressible", False)),
+        hold_rest=bool(results.get("hold_rest", False)),
     ).row
     recorded = next(r for r in results["rows"] if r["trajectory"] == 0)
     assert row["baseline_mse"] == pytest.approx(recorded["baseline_mse"], rel=1e-4)  # the same trajectory

@@ -2,7 +2,8 @@
 
 Both apply the same :class:`gnsx.model.boundary.Boundary` to every step (box walls, static segments), so a
 rollout never leaves the box or tunnels through a ramp, and the model is scored against a baseline held to the
-same walls. The model's rollout also gets the :class:`gnsx.model.density.DensityLimit` (water does not
+same walls. The model's rollout also gets the :class:`gnsx.model.rest.RestHold` (water at rest stays at
+rest; ``hold_rest=False`` leaves it out) and the :class:`gnsx.model.density.DensityLimit` (water does not
 compress; ``incompressible=False`` leaves it out); the baseline does not, since with it constant velocity plus
 gravity would be a position-based fluid solver, not physics-free. ``constrain=False`` gives the raw model
 (what it would do on its own).
@@ -19,6 +20,7 @@ from tqdm import tqdm
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
 from gnsx.model.density import DensityLimit
+from gnsx.model.rest import RestHold
 from gnsx.model.simulator import LearnedSimulator
 
 
@@ -32,6 +34,7 @@ def rollout(
     progress: bool = False,
     constrain: bool = True,
     incompressible: bool = True,
+    hold_rest: bool = True,
 ) -> Tensor:
     """Predict ``num_steps`` frames by feeding each prediction back as input.
 
@@ -50,6 +53,8 @@ def rollout(
         incompressible: with ``constrain``, also apply the scene's :class:`DensityLimit` to every predicted
             frame (water denser than its rest density is spread back, before the boundary); ``False``: the
             boundary alone.
+        hold_rest: with ``constrain``, also hold water at rest (:class:`RestHold`: a slow particle the model
+            barely accelerates keeps its position), before the density limit.
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
@@ -74,12 +79,15 @@ def rollout(
     limit = None
     if constrain and incompressible:
         limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, float(simulator.radius))
+    rest = RestHold.for_simulator(simulator) if constrain and hold_rest else None
     window = initial_positions
     predictions = []
     for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
         next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
         if static_positions is not None:
             next_position = torch.where(static, static_positions[step], next_position)
+        if rest is not None:
+            next_position = rest.apply(window, next_position, dynamic)
         if limit is not None:
             next_position = limit.apply(next_position, dynamic)
         if boundary is not None:
