@@ -206,9 +206,13 @@ def evaluate_checkpoints(
             check_fits(simulator, str(checkpoint), metadata.bounds, metadata.default_connectivity_radius,
                        metadata.dim, target)  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"split": split, "data_root": str(data_root), "incompressible": bool(incompressible),
-               "hold_rest": bool(hold_rest)}  # fmt: skip
-    results["models"] = []
+    results = {
+        "split": split,
+        "data_root": str(data_root),
+        "incompressible": bool(incompressible),
+        "hold_rest": bool(hold_rest),
+        "models": [],
+    }
     panels: list[np.ndarray] = []
     titles: list[str] = []
     shown: dict | None = None

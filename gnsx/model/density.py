@@ -99,12 +99,18 @@ class DensityLimit:
         rest = lattice_density(spacing, radius, points.shape[1])
         return cls(float(radius), rest, spacing, float(tolerance), int(iterations), float(max_step))
 
+    def _pairs(self, position: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """Pairs within ``radius`` and the kernel density: ``senders, receivers`` ``[E]``, ``offset``
+        ``[E, D]`` (receiver minus sender), ``r`` ``[E, 1]`` its length, ``rho`` ``[M]`` (itself included)."""
+        senders, receivers = radius_graph(position, self.radius)
+        offset = position[receivers] - position[senders]
+        r = offset.norm(dim=-1, keepdim=True)
+        rho = torch.ones(position.shape[0], dtype=position.dtype, device=position.device)
+        return senders, receivers, offset, r, rho.index_add_(0, receivers, spiky(r[:, 0], self.radius))
+
     def density(self, position: Tensor) -> Tensor:
         """``[M]`` kernel density of each of ``position`` ``[M, D]`` (itself included)."""
-        senders, receivers = radius_graph(position, self.radius)
-        r = (position[receivers] - position[senders]).norm(dim=-1)
-        rho = torch.ones(position.shape[0], dtype=position.dtype, device=position.device)
-        return rho.index_add_(0, receivers, spiky(r, self.radius))
+        return self._pairs(position)[-1]
 
     def apply(self, position: Tensor, moves: Tensor) -> Tensor:
         """``position`` ``[N, D]`` with the water of ``moves`` ``[N]`` (bool) decompressed."""
@@ -114,12 +120,7 @@ class DensityLimit:
         p = position.index_select(0, index).double()
         h, limit = self.radius, (1.0 + self.tolerance) * self.rest_density
         for _ in range(self.iterations):
-            senders, receivers = radius_graph(p, h)
-            offset = p[receivers] - p[senders]  # x_i - x_j, i the receiver
-            r = offset.norm(dim=-1, keepdim=True)
-            rho = torch.ones(len(p), dtype=p.dtype, device=p.device).index_add_(
-                0, receivers, spiky(r[:, 0], h)
-            )
+            senders, receivers, offset, r, rho = self._pairs(p)
             constraint = rho / limit - 1.0
             if not bool((constraint > 0).any()):
                 break
