@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -105,6 +105,10 @@ evaluate: install ## Evaluate checkpoint(s) on a split: make evaluate CKPT=<run 
 
 simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.ckpt> SCENE=scenes/two_blocks.yaml [ARGS=mpm=true]
 	$(PY) simulate.py checkpoint=$(CKPT) scene=$(SCENE) $(ARGS)
+
+sensitivity: install ## The ground truth's own predictability: MPM reruns of the test split from starts moved by 1e-6..1e-3 m, scored like a model (~3 min)
+	test -d $(DATA) || $(MAKE) data
+	$(PY) -m gnsx.mpm.sensitivity --data $(DATA) --split test --deltas 0 1e-6 1e-5 1e-4 1e-3 --out outputs/sensitivity $(ARGS)
 
 hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scenes, 10x horizon): MPM vs raw vs held model
 	$(PY) -m gnsx.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)

@@ -28,7 +28,7 @@ from gnsx.config_checks import check_evaluate_config
 def main(cfg: DictConfig) -> float:
     check_evaluate_config(cfg)
     # Imported here: a bad override fails in a second, without loading torch.
-    from gnsx.evaluate import evaluate_checkpoints
+    from gnsx.evaluate import evaluate_checkpoints, rules_of
     from gnsx.pipeline import build_loggers
     from gnsx.threads import apply_threads
 
@@ -57,8 +57,7 @@ def main(cfg: DictConfig) -> float:
             strip_count=cfg.render.strip_count,
             loggers=loggers,
             allow_mismatch=bool(OmegaConf.select(cfg, "allow_mismatch", default=False)),
-            incompressible=bool(OmegaConf.select(cfg, "incompressible", default=True)),
-            hold_rest=bool(OmegaConf.select(cfg, "hold_rest", default=True)),
+            rules=rules_of(cfg, "rules"),
         )
         for logger in loggers:
             logger.finalize("success")

@@ -58,6 +58,7 @@ def check_train_config(cfg: DictConfig) -> None:
     for key in ("lr_decay_start", "lr_decay_end"):
         check_int(_get(cfg, f"train.{key}"), f"train.{key}", minimum=0)
     check_int(_get(cfg, "train.max_skipped_steps", 0), "train.max_skipped_steps", minimum=0)
+    check_int(_get(cfg, "train.pushforward_steps", 0), "train.pushforward_steps", minimum=0)
     check_int(_get(cfg, "train.val_max_trajectories"), "train.val_max_trajectories", 1, allow_none=True)
     for key in ("lr_init", "lr_final", "noise_decay", "huber_delta"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True)
@@ -86,6 +87,7 @@ def check_train_config(cfg: DictConfig) -> None:
     check_int(_get(cfg, "data.batch_size"), "data.batch_size", minimum=1)
     check_int(_get(cfg, "data.num_workers"), "data.num_workers", minimum=0)
     check_int(_get(cfg, "evaluate.max_trajectories"), "evaluate.max_trajectories", 1, allow_none=True)
+    check_rules(cfg, "evaluate.rules")
     for key in ("latent_size", "mp_steps", "mlp_hidden_size", "history"):
         check_int(_get(cfg, f"model.{key}"), f"model.{key}", minimum=1)
     check_number(_get(cfg, "model.radius"), "model.radius", positive=True, allow_none=True)
@@ -127,6 +129,15 @@ def check_evaluate_config(cfg: DictConfig) -> None:
         check_int(_get(cfg, key), key, minimum=1)
     check_int(_get(cfg, "metrics.emd_every"), "metrics.emd_every", minimum=0)
     check_int(_get(cfg, "metrics.onestep_stride"), "metrics.onestep_stride", minimum=1)
+    check_rules(cfg, "rules")
+
+
+def check_rules(cfg: DictConfig, key: str) -> None:
+    """The rollout rules block at ``key`` (:class:`gnsx.model.rules.Rules`): known rules, booleans."""
+    from gnsx.model.rules import Rules
+
+    block = OmegaConf.select(cfg, key, default=None)
+    Rules.from_mapping(None if block is None else OmegaConf.to_container(block), key)
 
 
 def check_simulate_config(cfg: DictConfig, input_frames: int | None = None) -> None:

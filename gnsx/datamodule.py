@@ -25,17 +25,20 @@ from gnsx.data.trajectory import Trajectory
 class FrameDataset(Dataset):
     """Every usable frame of a split as one sample.
 
-    A sample is a PyG ``Data`` with ``position_sequence [N, H+1, D]`` (oldest first), ``next_position [N, D]``
-    and ``particle_type [N]``; ``Batch`` concatenates samples and adds ``batch [sum N]``.
+    A sample is a PyG ``Data`` with ``position_sequence [N, H+1+lead, D]`` (oldest first), ``next_position
+    [N, D]`` and ``particle_type [N]``; ``Batch`` concatenates samples and adds ``batch [sum N]``.
     """
 
-    def __init__(self, reader: SplitReader, history: int):
+    def __init__(self, reader: SplitReader, history: int, lead: int = 0):
         self.reader = reader
         self.history = history
-        # Frame k is usable when p[k-H] and p[k+1] exist: k in [H, T-2], i.e. T-H-1 samples per trajectory.
-        counts = np.array([max(reader.num_frames(i) - history - 1, 0) for i in range(len(reader))], np.int64)
+        self.lead = lead
+        # The model's H + 1 input frames, ``lead`` frames it predicts itself before the loss step (the
+        # pushforward trick, LearnedSimulator.noisy_training_pair), and the target.
+        frames = history + 1 + lead
+        counts = np.array([max(reader.num_frames(i) - frames, 0) for i in range(len(reader))], np.int64)
         if counts.sum() == 0:
-            raise ValueError(f"{reader.root}: no trajectory has more than {history + 1} frames")
+            raise ValueError(f"{reader.root}: no trajectory has more than {frames} frames")
         self.cumulative = np.cumsum(counts)
 
     def __len__(self) -> int:
@@ -45,8 +48,9 @@ class FrameDataset(Dataset):
         traj_index = int(np.searchsorted(self.cumulative, index, side="right"))
         first = index - (self.cumulative[traj_index - 1] if traj_index > 0 else 0)
         traj = self.reader[traj_index]
-        # Frames first .. first+H+1: the H+1 inputs and the target; one contiguous slice of the memmap.
-        window = torch.from_numpy(np.array(traj.position[first : first + self.history + 2], dtype=np.float32))
+        # Frames first .. first+H+1+lead: the inputs and the target; one contiguous slice of the memmap.
+        last = first + self.history + self.lead + 2
+        window = torch.from_numpy(np.array(traj.position[first:last], dtype=np.float32))
         return Data(
             position_sequence=window[:-1].transpose(0, 1).contiguous(),
             next_position=window[-1],
@@ -91,6 +95,8 @@ class ParticleDataModule(L.LightningDataModule):
         num_workers: DataLoader worker processes for training frames.
         val_max_trajectories: validation rollouts per validation run (None: all).
         test_max_trajectories: test rollouts (None: all).
+        pushforward_steps: frames a training sample holds beyond the model's inputs and target, for the
+            pushforward trick (``train.pushforward_steps``; 0: DeepMind's single step).
     """
 
     def __init__(
@@ -101,6 +107,7 @@ class ParticleDataModule(L.LightningDataModule):
         num_workers: int = 0,
         val_max_trajectories: int | None = None,
         test_max_trajectories: int | None = None,
+        pushforward_steps: int = 0,
     ):
         super().__init__()
         self.root = Path(root)
@@ -109,6 +116,7 @@ class ParticleDataModule(L.LightningDataModule):
         self.num_workers = num_workers
         self.val_max_trajectories = val_max_trajectories
         self.test_max_trajectories = test_max_trajectories
+        self.pushforward_steps = pushforward_steps
         self._metadata: Metadata | None = None
         self._checked: dict[str, SplitReader] = {}
 
@@ -137,7 +145,7 @@ class ParticleDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit"):
-            self.train_set = FrameDataset(self._reader("train"), self.history)
+            self.train_set = FrameDataset(self._reader("train"), self.history, self.pushforward_steps)
             self.val_set = TrajectoryDataset(self._reader("valid"), self.val_max_trajectories)
         if stage in (None, "test"):
             self.test_set = TrajectoryDataset(self._reader("test"), self.test_max_trajectories)

@@ -19,6 +19,7 @@ from gnsx.atomic import write_json
 from gnsx.checkpoints import check_fits, load_simulator, model_label, slug
 from gnsx.data.metadata import Metadata
 from gnsx.errors import ConfigError
+from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.scoring import (
     TrajectoryResult,
@@ -48,6 +49,18 @@ def render_comparison(first: dict, metadata: Metadata, path: Path, label: str) -
     return save_animation(frames, path, fps=25)
 
 
+def rules_of(section, where: str) -> Rules:
+    """The :class:`Rules` of a config section's ``rules`` block (absent: all on).
+
+    Raises:
+        ConfigError: an unknown rule or a value that is not a boolean, named as ``where.<key>``.
+    """
+    from omegaconf import OmegaConf
+
+    block = OmegaConf.select(section, "rules", default=None)
+    return Rules.from_mapping(None if block is None else OmegaConf.to_container(block), where)
+
+
 def _read_json(path: Path) -> dict:
     try:
         payload = json.loads(path.read_text())
@@ -71,9 +84,9 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
     options = {
         key: cfg.evaluate.get(key, default)
         for key, default in (("emd_every", 10), ("emd_method", "auto"), ("onestep_stride", 10),
-                             ("timing_repeats", 20), ("incompressible", True),
-                             ("hold_rest", True))
+                             ("timing_repeats", 20))
     }  # fmt: skip
+    options["rules"] = rules = rules_of(cfg.evaluate, "evaluate.rules")
     per_frame: list[dict] = []
     summary, rows, first = evaluate_simulator(
         simulator,
@@ -92,8 +105,7 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
         "parameters": simulator.num_parameters(),
         "test": summary,
         "rows": rows,
-        "incompressible": bool(options["incompressible"]),
-        "hold_rest": bool(options["hold_rest"]),
+        "rules": rules.to_dict(),
     }
     write_csv(run_dir / "test_per_frame.csv", per_frame)
     suffix = cfg.evaluate.render_format
@@ -150,14 +162,13 @@ def evaluate_checkpoints(
     strip_count: int = 7,
     loggers: Sequence = (),
     allow_mismatch: bool = False,
-    incompressible: bool = True,
-    hold_rest: bool = True,
+    rules: Rules | None = None,
 ) -> dict:
     """Evaluate checkpoints on every trajectory of a split and write what a user needs to judge them.
 
     Writes into ``out_dir``:
 
-    * ``results.json``: ``{"split", "data_root", "incompressible", "hold_rest", "models": [{"label", "folder",
+    * ``results.json``: ``{"split", "data_root", "rules", "models": [{"label", "folder",
       "checkpoint", "parameters", "summary", "rows"}], "comparisons", "outputs"}`` (summary and rows as
       :func:`~gnsx.scoring.evaluate_simulator`'s; ``comparisons``: with two or more models, each later model
       against the first, :func:`~gnsx.spread.compare` on ``rollout_mse`` and ``emd`` plus ``"a"``, ``"b"``
@@ -177,9 +188,8 @@ def evaluate_checkpoints(
         checkpoints: ``.ckpt`` files or run directories.
         data_root: the gnsx dataset (its metadata gives bounds, dt and the neighbour radius).
         labels: one per checkpoint (default :func:`~gnsx.checkpoints.model_label`, made unique).
-        incompressible: roll the models out with the density limit (:mod:`gnsx.model.density`); recorded in
-            ``results.json``.
-        hold_rest: roll the models out holding water at rest (:mod:`gnsx.model.rest`); recorded too.
+        rules: the simulator's rules on the models' rollouts (:class:`gnsx.model.rules.Rules`; None: all of
+            them); recorded in ``results.json``.
         allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
             connectivity radius more than 2x apart, :func:`~gnsx.checkpoints.check_fits`); refused otherwise.
         Others: see :func:`~gnsx.scoring.score_trajectory` and :mod:`gnsx.render`.
@@ -209,8 +219,7 @@ def evaluate_checkpoints(
     results = {
         "split": split,
         "data_root": str(data_root),
-        "incompressible": bool(incompressible),
-        "hold_rest": bool(hold_rest),
+        "rules": (rules := rules or Rules()).to_dict(),
         "models": [],
     }
     panels: list[np.ndarray] = []
@@ -265,8 +274,7 @@ def evaluate_checkpoints(
             onestep_stride=onestep_stride,
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
-            incompressible=incompressible,
-            hold_rest=hold_rest,
+            rules=rules,
             on_trajectory=keep,
         )
         print(format_table(rows, summary, f"{split} rollouts: {label} ({checkpoint})"))

@@ -126,6 +126,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         noise_std=float(train.noise_std if train.noise_std is not None else cfg.model.noise_std),
         noise_decay=float(train.noise_decay),
         noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
+        pushforward_steps=int(OmegaConf.select(train, "pushforward_steps", default=0)),
         lr_init=float(train.lr_init),
         lr_final=float(train.lr_final),
         lr_decay_start=int(train.lr_decay_start),
@@ -439,6 +440,7 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
         num_workers=int(cfg.data.num_workers),
         val_max_trajectories=cfg.train.val_max_trajectories,
         test_max_trajectories=cfg.evaluate.max_trajectories,
+        pushforward_steps=int(OmegaConf.select(cfg.train, "pushforward_steps", default=0)),
     )
     datamodule.check(["train", "valid", *(["test"] if cfg.evaluate.enabled else [])])
     if resume is not None:

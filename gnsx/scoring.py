@@ -87,6 +87,7 @@ from gnsx.metrics import (
     position_mse_per_frame,
 )
 from gnsx.model.rollout import physics_free_baseline, rollout
+from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.spread import (
     DOES_NOT_BEAT,
@@ -285,6 +286,47 @@ def rollout_errors(
     return errors, per_frame
 
 
+def baseline_errors(
+    true: np.ndarray,
+    particle_type: np.ndarray,
+    input_frames: int,
+    metadata: Metadata,
+    emd_every: int = 10,
+    emd_method: str = "auto",
+) -> tuple[np.ndarray, dict, dict[str, np.ndarray]]:
+    """The physics-free baseline rolled out from the first ``input_frames`` true frames, and its errors.
+
+    Args:
+        true: ``[T, N, D]`` ground-truth positions; particle_type: ``[N]``.
+        input_frames, metadata, emd_every, emd_method: as in :func:`rollout_errors`.
+    Returns:
+        ``baseline [T, N, D]`` (the true first ``input_frames`` frames, then the baseline's), the row keys
+        ``baseline_mse``, ``baseline_mse_at_<h>``, ``baseline_emd``, and the ``[T]`` per-frame arrays
+        ``baseline_mse`` and ``baseline_emd`` (NaN where not computed).
+    """
+    frames, num_frames = input_frames, true.shape[0]
+    initial = torch.from_numpy(np.array(true[:frames])).transpose(0, 1)  # [N, H+1, D], a writable copy
+    predicted = physics_free_baseline(
+        initial, torch.tensor(particle_type), num_frames - frames, gravity_per_frame(metadata),
+        metadata.bounds_array(),
+    )  # fmt: skip
+    baseline = np.concatenate([true[:frames], predicted.numpy()])
+    dynamic = np.asarray(particle_type) != KINEMATIC_PARTICLE_ID
+    per_frame = {key: np.full(num_frames, np.nan) for key in ("baseline_mse", "baseline_emd")}
+    per_frame["baseline_mse"][frames:] = position_mse_per_frame(baseline[frames:], true[frames:], dynamic)
+    set_frames = distribution_frames(num_frames, frames, emd_every)  # the frames of the model's emd
+    for t in set_frames:
+        per_frame["baseline_emd"][t] = earth_movers_distance(
+            baseline[t, dynamic], true[t, dynamic], method=emd_method
+        )
+    row = {
+        "baseline_mse": position_mse(baseline[frames:], true[frames:], dynamic),
+        **{f"baseline_mse_at_{h}": horizon_mse(per_frame["baseline_mse"], frames, h) for h in HORIZONS},
+        "baseline_emd": float(np.mean(per_frame["baseline_emd"][set_frames])) if set_frames else float("nan"),
+    }
+    return baseline, row, per_frame
+
+
 @torch.inference_mode()
 def score_trajectory(
     simulator: LearnedSimulator,
@@ -298,8 +340,7 @@ def score_trajectory(
     timing_warmup: int = 3,
     timing_repeats: int = 20,
     constrain: bool = True,
-    incompressible: bool = True,
-    hold_rest: bool = True,
+    rules: Rules | None = None,
 ) -> TrajectoryResult:
     """Roll out one trajectory from its first ``history + 1`` frames and compute every metric.
 
@@ -314,11 +355,10 @@ def score_trajectory(
         onestep_stride: one-step MSE on every ``onestep_stride``-th frame.
         timing_warmup, timing_repeats: :func:`gnsx.benchmark.measure_inference` on the initial frames;
             ``timing_repeats=0`` skips it (``ms_per_frame`` and ``peak_memory_mb`` are then NaN/None).
-        constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`);
-            ``False`` scores the raw model. The baseline is always held.
-        incompressible: with ``constrain``, also the density limit (:class:`gnsx.model.density.DensityLimit`,
-            the model's rollout only).
-        hold_rest: with ``constrain``, also hold water at rest (:class:`gnsx.model.rest.RestHold`).
+        constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`)
+            and the ``rules``; ``False`` scores the raw model. The baseline is always held by the boundary.
+        rules: with ``constrain``, the simulator's rules on the model's rollout
+            (:class:`gnsx.model.rules.Rules`; ``None``: all of them).
     """
     device = simulator.acc_std.device
     position = position.to(device=device, dtype=torch.float32)
@@ -347,8 +387,7 @@ def score_trajectory(
                     particle_type,
                     steps,
                     constrain=constrain,
-                    incompressible=incompressible,
-                    hold_rest=hold_rest,
+                    rules=rules,
                 ),
             ]
         )
@@ -356,23 +395,13 @@ def score_trajectory(
         .numpy()
     )
     rollout_seconds = time.perf_counter() - start
-    baseline = physics_free_baseline(
-        initial.cpu(), particle_type.cpu(), steps, gravity_per_frame(metadata), metadata.bounds_array()
-    )
-    baseline = torch.cat([position[:frames].cpu(), baseline]).numpy()
     true = position.cpu().numpy()
     types = particle_type.cpu().numpy()
     errors, per_frame = rollout_errors(predicted, true, types, frames, metadata, emd_every, emd_method)
-    dynamic = types != KINEMATIC_PARTICLE_ID
-    per_frame["baseline_mse"] = np.full(num_frames, np.nan)
-    per_frame["baseline_mse"][frames:] = position_mse_per_frame(baseline[frames:], true[frames:], dynamic)
-    per_frame["baseline_emd"] = np.full(num_frames, np.nan)
-    set_frames = distribution_frames(num_frames, frames, emd_every)  # the frames of the model's emd
-    for t in set_frames:
-        per_frame["baseline_emd"][t] = earth_movers_distance(
-            baseline[t, dynamic], true[t, dynamic], method=emd_method
-        )
-    baseline_mse = position_mse(baseline[frames:], true[frames:], dynamic)
+    baseline, baseline_row, baseline_per_frame = baseline_errors(
+        true, types, frames, metadata, emd_every, emd_method
+    )
+    per_frame |= baseline_per_frame
     health = rollout_health(predicted, types, metadata, first_frame=frames)
     row = {
         "trajectory": int(index),
@@ -380,10 +409,8 @@ def score_trajectory(
         "frames": int(steps),
         **errors,
         "onestep_mse": onestep_mse(simulator, position, particle_type, onestep_stride),
-        "baseline_mse": baseline_mse,
-        **{f"baseline_mse_at_{h}": horizon_mse(per_frame["baseline_mse"], frames, h) for h in HORIZONS},
-        "baseline_emd": float(np.mean(per_frame["baseline_emd"][set_frames])) if set_frames else float("nan"),
-        "baseline_ratio": baseline_mse / max(errors["rollout_mse"], 1e-30),
+        **baseline_row,
+        "baseline_ratio": baseline_row["baseline_mse"] / max(errors["rollout_mse"], 1e-30),
         "ms_per_frame": float(timing["ms_per_frame"]),
         "peak_memory_mb": timing["peak_memory_mb"],
         "rollout_ms_per_frame": 1000 * rollout_seconds / steps,
@@ -405,7 +432,7 @@ def summarise(rows: Sequence[dict]) -> dict:
     for key in _MEAN_KEYS:
         if rows and key in rows[0]:
             summary[key], summary[f"{key}_se"] = mean_se(r.get(key) for r in rows)
-    speeds = [r["ms_per_frame"] for r in rows if not math.isnan(r["ms_per_frame"])]
+    speeds = [r["ms_per_frame"] for r in rows if not math.isnan(r.get("ms_per_frame", math.nan))]
     summary["ms_per_frame"] = float(np.median(speeds)) if speeds else float("nan")
     memory = [r["peak_memory_mb"] for r in rows if r.get("peak_memory_mb") is not None]
     summary["peak_memory_mb"] = float(max(memory)) if memory else None
@@ -444,8 +471,7 @@ def evaluate_simulator(
     timing_warmup: int = 3,
     timing_repeats: int = 20,
     constrain: bool = True,
-    incompressible: bool = True,
-    hold_rest: bool = True,
+    rules: Rules | None = None,
     on_trajectory: Callable[[TrajectoryResult], None] | None = None,
 ) -> tuple[dict, list[dict], dict | None]:
     """Roll out and score every trajectory (see :func:`score_trajectory` for the arguments).
@@ -482,8 +508,7 @@ def evaluate_simulator(
             timing_warmup=timing_warmup,
             timing_repeats=timing_repeats,
             constrain=constrain,
-            incompressible=incompressible,
-            hold_rest=hold_rest,
+            rules=rules,
         )
         rows.append(result.row)
         if keep_first and first is None:

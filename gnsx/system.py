@@ -60,6 +60,8 @@ class GNSSystem(L.LightningModule):
         noise_decay: factor applied to the noise std by the end of the LR decay (paper: 0.4).
         noise_correction: share of the input position noise the target undoes (0: DeepMind's; 1: the
             target is the true next position; :meth:`LearnedSimulator.noisy_training_pair`).
+        pushforward_steps: model steps without gradient before the loss step (the pushforward trick; the
+            datamodule must give samples that many frames longer); 0: DeepMind's single step.
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
@@ -85,6 +87,7 @@ class GNSSystem(L.LightningModule):
         noise_std: float = 3.0e-4,
         noise_decay: float = 0.4,
         noise_correction: float = 0.0,
+        pushforward_steps: int = 0,
         lr_init: float = 1.0e-4,
         lr_final: float = 1.0e-6,
         lr_decay_start: int = 1_000_000,
@@ -99,6 +102,8 @@ class GNSSystem(L.LightningModule):
             raise ValueError(f"GNSSystem: loss must be one of {LOSSES}, got {loss!r}")
         if not 0.0 <= noise_correction <= 1.0:
             raise ValueError(f"GNSSystem: noise_correction must be in [0, 1], got {noise_correction}")
+        if pushforward_steps < 0:
+            raise ValueError(f"GNSSystem: pushforward_steps must be >= 0, got {pushforward_steps}")
         if not huber_delta > 0:
             raise ValueError(f"GNSSystem: huber_delta must be > 0, got {huber_delta}")
         self.save_hyperparameters()
@@ -164,6 +169,7 @@ class GNSSystem(L.LightningModule):
             std,
             batch.batch,
             position_correction=correction,
+            pushforward_steps=self.hparams.get("pushforward_steps", 0),  # absent from older checkpoints
         )
         # Averaged over dynamic particles: static particles are never moved by the model, so they are not in
         # the loss.

@@ -339,6 +339,16 @@ def _train(overrides: list[str], tmp_path, capsys, case: str, dataset: Path | No
             "train.noise_correction=1.5",
             "error: train.noise_correction=1.5: must be in [0, 1]",
         ),
+        (
+            "train: negative pushforward steps",
+            "train.pushforward_steps=-1",
+            "error: train.pushforward_steps=-1: must be >= 0",
+        ),
+        (
+            "train: a rollout rule that is not true or false",
+            "evaluate.rules.hold_rest=maybe",
+            "error: evaluate.rules.hold_rest=maybe: must be true or false",
+        ),
         ("train: unknown loss", "train.loss=l1", "error: train.loss=l1: expected one of mse, huber"),
         ("train: bad max_time", "train.max_time=soon", "error: train.max_time=soon: expected DD:HH:MM:SS"),
         (

@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 
 from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
+from gnsx.model.rules import Rules
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import Preset
 from gnsx.scoring import score_trajectory
@@ -76,9 +77,8 @@ def test_shipped_weights_reproduce_their_test_rollout(shipped):
         metadata,
         emd_every=0,
         timing_repeats=0,
-        # Scored before the density limit existed (2026-12-01): its results.json has no such key.
-        incompressible=bool(results.get("incompressible", False)),
-        hold_rest=bool(results.get("hold_rest", False)),
+        # Scored before the rules existed (2026-12-01): its results.json names none, the boundary alone.
+        rules=Rules.from_results(results),
     ).row
     recorded = next(r for r in results["rows"] if r["trajectory"] == 0)
     assert row["baseline_mse"] == pytest.approx(recorded["baseline_mse"], rel=1e-4)  # the same trajectory

@@ -15,6 +15,7 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.hardcases import CASES, drift, ground_truth
 from gnsx.model.rest import RestHold
 from gnsx.model.rollout import rollout
+from gnsx.model.rules import Rules
 from gnsx.mpm.presets import get_preset
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
@@ -76,7 +77,7 @@ def test_shipped_weights_keep_a_pool_at_rest_only_with_the_hold():
     water = (types != KINEMATIC_PARTICLE_ID).numpy()
     drifts = {}
     for held in (True, False):
-        positions = rollout(simulator, initial, types, 200, hold_rest=held).double().numpy()
+        positions = rollout(simulator, initial, types, 200, rules=Rules(hold_rest=held)).double().numpy()
         assert np.isfinite(positions).all()
         drifts[held] = 100 * drift(positions, water)  # cm per 100 frames
     assert drifts[True] < 0.5
@@ -91,7 +92,7 @@ def test_a_dam_placed_at_rest_still_breaks():
     water = (types != KINEMATIC_PARTICLE_ID).numpy()
     speed = {}
     for held in (True, False):
-        positions = rollout(simulator, initial, types, 60, hold_rest=held).double().numpy()
+        positions = rollout(simulator, initial, types, 60, rules=Rules(hold_rest=held)).double().numpy()
         speed[held] = np.linalg.norm(positions[1:] - positions[:-1], axis=-1)[:, water].max() / 0.0025  # m/s
     assert speed[True] > 0.5
     assert speed[True] > 0.7 * speed[False]

@@ -213,6 +213,35 @@ def test_noise_position_correction_leads_the_target_back_to_the_truth(correction
         pair(1.5)
 
 
+@pytest.mark.parametrize("name", CONFIGS)
+def test_pushforward_starts_the_loss_step_where_the_model_got_to(name):
+    simulator = make_simulator(CONFIGS[name])
+    steps = 2
+    positions, types = scene(frames=simulator.input_frames + steps + 1)
+    window, next_position = positions[:, :-1], positions[:, -1]
+    pair = lambda noise: simulator.noisy_training_pair(  # noqa: E731
+        window, next_position, types, noise, pushforward_steps=steps
+    )
+    predicted, target = pair(0.0)
+    # By hand: the model's own two steps from the oldest frames, then one step scored against the truth.
+    pushed = window[:, : simulator.input_frames]
+    for _ in range(steps):
+        pushed = torch.cat([pushed[:, 1:], simulator.predict_positions(pushed, types).unsqueeze(1)], dim=1)
+    assert not torch.equal(pushed[:, -1], window[:, -1])  # the model drifted: the test has something to see
+    assert torch.allclose(predicted, simulator(pushed, types))
+    # The drift is treated as the noise is: the target keeps the position deviation, undoes the velocity's.
+    drift = pushed[:, -1] - window[:, -1]
+    assert torch.allclose(target, simulator.normalized_target(next_position + drift, pushed), atol=2e-3)
+    static = types == KINEMATIC_PARTICLE_ID
+    assert torch.equal(pushed[static, -1], window[static, -1])
+    # Only the loss step carries a gradient.
+    simulator.zero_grad()
+    predicted, target = pair(3e-4)
+    assert predicted.requires_grad and not target.requires_grad
+    with pytest.raises(ValueError, match="pushforward_steps 1 needs"):
+        simulator.noisy_training_pair(window, next_position, types, 0.0, pushforward_steps=1)
+
+
 def test_batched_forward_equals_single_forwards():
     simulator = make_simulator(SIMPLIFIED)
     first, types_a = scene(seed=1, frames=2)

@@ -140,6 +140,27 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
     assert resumed["lr_schedulers"][0]["last_epoch"] == 9
 
 
+def test_pushforward_training_reads_longer_windows_and_trains(tmp_path, tiny_dataset):
+    from gnsx.data.store import SplitReader
+    from gnsx.datamodule import FrameDataset
+
+    reader = SplitReader(tiny_dataset, "train")
+    frames = [reader.num_frames(i) for i in range(len(reader))]
+    plain, pushed = FrameDataset(reader, history=1), FrameDataset(reader, history=1, lead=2)
+    assert len(plain) == sum(t - 2 for t in frames) and len(pushed) == sum(t - 4 for t in frames)
+    sample = pushed[len(pushed) - 1]  # the last window ends on the last frame
+    assert sample.position_sequence.shape[1] == 4
+    assert torch.equal(sample.next_position, torch.from_numpy(reader[len(reader) - 1].position[-1].copy()))
+    run = _run_train(
+        tmp_path, tiny_dataset, "pushforward",
+        ["logger=csv", "train.max_steps=3", "train.max_time=null", "train.pushforward_steps=1",
+         "evaluate.enabled=false"],
+    )  # fmt: skip
+    assert json.loads((run / "results.json").read_text())["global_step"] == 3
+    system = GNSSystem.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu")
+    assert system.hparams.pushforward_steps == 1
+
+
 def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
     run = _run_train(
         tmp_path,

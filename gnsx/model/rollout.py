@@ -2,12 +2,12 @@
 
 Both apply the same :class:`gnsx.model.boundary.Boundary` to every step (box walls, static segments), so a
 rollout never leaves the box or tunnels through a ramp, and the model is scored against a baseline held to the
-same walls. The model's rollout also gets the :class:`gnsx.model.rest.RestHold` (water at rest stays at
-rest; ``hold_rest=False`` leaves it out) and the :class:`gnsx.model.density.DensityLimit` (water does not
-compress; ``incompressible=False`` leaves it out); the baseline does not, since with it constant velocity plus
-gravity would be a position-based fluid solver, not physics-free. ``constrain=False`` gives the raw model
-(what it would do on its own).
-"""
+same walls. The model's rollout also gets the simulator's rules (:class:`gnsx.model.rules.Rules`, all on by
+default): free flight (:class:`gnsx.model.freeflight.FreeFlight`: a free rigid cluster of water falls at g),
+the rest hold (:class:`gnsx.model.rest.RestHold`: water at rest stays at rest) and the density limit
+(:class:`gnsx.model.density.DensityLimit`: water does not compress). The baseline gets none of them: with
+them, constant velocity plus gravity would be a position-based fluid solver, not physics-free.
+``constrain=False`` gives the raw model (what it would do on its own)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,9 @@ from tqdm import tqdm
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
 from gnsx.model.density import DensityLimit
+from gnsx.model.freeflight import FreeFlight
 from gnsx.model.rest import RestHold
+from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 
 
@@ -33,8 +35,7 @@ def rollout(
     static_positions: Tensor | None = None,
     progress: bool = False,
     constrain: bool = True,
-    incompressible: bool = True,
-    hold_rest: bool = True,
+    rules: Rules | None = None,
 ) -> Tensor:
     """Predict ``num_steps`` frames by feeding each prediction back as input.
 
@@ -49,12 +50,12 @@ def rollout(
             position.
         progress: show a tqdm progress bar.
         constrain: apply the scene's :class:`Boundary` (the model's box, segments between the static
-            particles of the last input frame) to every predicted frame; ``False``: the raw model.
-        incompressible: with ``constrain``, also apply the scene's :class:`DensityLimit` to every predicted
-            frame (water denser than its rest density is spread back, before the boundary); ``False``: the
-            boundary alone.
-        hold_rest: with ``constrain``, also hold water at rest (:class:`RestHold`: a slow particle the model
-            barely accelerates keeps its position), before the density limit.
+            particles of the last input frame) and the ``rules`` to every predicted frame; ``False``: the raw
+            model.
+        rules: with ``constrain``, which of the simulator's rules apply before the boundary, in this order:
+            free flight (:class:`FreeFlight`: a free rigid cluster falls at g; the rules after it leave its
+            particles alone), the rest hold (:class:`RestHold`), the density limit (:class:`DensityLimit`).
+            ``None``: all of them (:class:`Rules`' defaults).
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
@@ -76,20 +77,26 @@ def rollout(
     boundary = None
     if constrain:
         boundary = Boundary.from_particles(simulator.bounds.cpu(), initial_positions[:, -1], particle_type)
+    rules = (rules or Rules()) if constrain else Rules.none()
     limit = None
-    if constrain and incompressible:
+    if rules.incompressible:
         limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, float(simulator.radius))
-    rest = RestHold.for_simulator(simulator) if constrain and hold_rest else None
+    rest = RestHold.for_simulator(simulator) if rules.hold_rest else None
+    flight = FreeFlight.for_simulator(simulator) if rules.free_flight else None
     window = initial_positions
     predictions = []
     for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
         next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
         if static_positions is not None:
             next_position = torch.where(static, static_positions[step], next_position)
+        moves = dynamic  # the particles the rules below may move
+        if flight is not None:
+            next_position, free = flight.apply(window, next_position, particle_type)
+            moves = dynamic & ~free
         if rest is not None:
-            next_position = rest.apply(window, next_position, dynamic)
+            next_position = rest.apply(window, next_position, moves)
         if limit is not None:
-            next_position = limit.apply(next_position, dynamic)
+            next_position = limit.apply(next_position, moves)
         if boundary is not None:
             next_position = boundary.apply(window[:, -1], next_position, dynamic)
         predictions.append(next_position)

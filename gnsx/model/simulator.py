@@ -482,6 +482,7 @@ class LearnedSimulator(nn.Module):
         batch: Tensor | None = None,
         generator: torch.Generator | None = None,
         position_correction: float = 0.0,
+        pushforward_steps: int = 0,
     ) -> tuple[Tensor, Tensor]:
         """Prediction and target on noise-corrupted inputs (DeepMind's training step).
 
@@ -494,14 +495,21 @@ class LearnedSimulator(nn.Module):
         learns a restoring force against the compression it never sees in the data (a fluid compressed in
         a rollout otherwise stays compressed).
 
+        With ``pushforward_steps = k > 0`` (the pushforward trick, Brandstetter et al. 2022) the model first
+        rolls itself out ``k`` steps from the noisy oldest ``H + 1`` frames, without gradient, and the loss
+        step starts from where it got to: the input's deviation from the truth is then the model's own
+        rollout error instead of a random walk alone, and the target treats it as the noise above (undoes
+        the velocity deviation, keeps ``1 - position_correction`` of the position deviation).
+
         Args:
-            position_sequence: ``[N, history + 1, D]`` clean positions, oldest first.
+            position_sequence: ``[N, history + 1 + k, D]`` clean positions, oldest first.
             next_position: ``[N, D]`` clean position of the next frame.
             particle_type: ``[N]`` int64 (static particles get no noise).
             noise_std: std of the noise on the most recent velocity (per frame); 0 disables noise.
             batch: ``[N]`` graph ids or ``None``.
             generator: optional torch generator for the noise.
             position_correction: share of the most recent position noise the target undoes, in [0, 1].
+            pushforward_steps: ``k``, model steps without gradient before the loss step.
 
         Returns:
             ``(predicted, target)``, both ``[N, D]`` normalised accelerations. The loss (masking static
@@ -509,10 +517,25 @@ class LearnedSimulator(nn.Module):
         """
         if not 0.0 <= position_correction <= 1.0:
             raise ValueError(f"position_correction must be in [0, 1], got {position_correction}")
+        frames = self.history + 1
+        if pushforward_steps < 0 or position_sequence.shape[1] != frames + pushforward_steps:
+            raise ValueError(
+                f"position_sequence has {position_sequence.shape[1]} frames; history {self.history} with "
+                f"pushforward_steps {pushforward_steps} needs {frames + pushforward_steps}"
+            )
+        true_sequence = position_sequence
+        position_sequence = true_sequence[:, :frames]
         if noise_std > 0:
             noise = random_walk_noise(position_sequence, noise_std, particle_type, generator=generator)
             position_sequence = position_sequence + noise
-            next_position = next_position + (1.0 - position_correction) * noise[:, -1]
+        if pushforward_steps > 0:
+            with torch.no_grad():
+                for _ in range(pushforward_steps):
+                    moved = self.predict_positions(position_sequence, particle_type, batch)
+                    position_sequence = torch.cat([position_sequence[:, 1:], moved.unsqueeze(1)], dim=1)
+        # The most recent input's deviation from the truth: the noise, plus the model's drift if pushed.
+        deviation = position_sequence[:, -1] - true_sequence[:, -1]
+        next_position = next_position + (1.0 - position_correction) * deviation
         predicted = self(position_sequence, particle_type, batch)
         target = self.normalized_target(next_position, position_sequence)
         return predicted, target

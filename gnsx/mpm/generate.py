@@ -90,17 +90,34 @@ def initial_state(scene: Scene, preset: Preset, seed: int = 0) -> tuple[np.ndarr
 
 
 def scene_solver(
-    scene: Scene, preset: Preset, seed: int = 0, device: str | torch.device = "cpu"
+    scene: Scene,
+    preset: Preset,
+    seed: int = 0,
+    device: str | torch.device = "cpu",
+    *,
+    position_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> tuple[MLSMPMSolver, np.ndarray, np.ndarray]:
     """The preset's solver holding the scene's water at frame 0 (the scene is checked first).
 
+    Args:
+        position_noise: standard deviation (m) of Gaussian noise added to every water particle's initial
+            position (seeded by ``noise_seed``), clipped into the walls; 0 (the default) adds nothing and
+            draws nothing. :mod:`gnsx.mpm.sensitivity` uses it to measure how far a perturbed start drifts.
+
     Returns:
         The solver, and the scene's ``position [N, 2]`` float32 and ``particle_type [N]`` of
-        :func:`initial_state` (water first, then the ramps the solver holds as segments).
+        :func:`initial_state` (water first, then the ramps the solver holds as segments; the water as the
+        solver got it, noise included).
     """
     check_scene(scene, preset)
     initial_position, velocity, particle_type = initial_state(scene, preset, seed)
     water = particle_type == WATER_PARTICLE_ID
+    if position_noise > 0.0:
+        noise = np.random.default_rng(noise_seed).normal(0.0, position_noise, (int(water.sum()), 2))
+        lo, hi = preset.bounds
+        moved = np.clip(initial_position[water] + noise, lo, hi)
+        initial_position[water] = moved.astype(np.float32)
     solver = MLSMPMSolver(
         initial_position[water],
         velocity[water],
@@ -113,14 +130,23 @@ def scene_solver(
 
 
 def run_scene(
-    scene: Scene, preset: Preset, seed: int, device: str | torch.device = "cpu"
+    scene: Scene,
+    preset: Preset,
+    seed: int,
+    device: str | torch.device = "cpu",
+    *,
+    position_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> tuple[Trajectory, MLSMPMSolver]:
     """Simulate ``scene`` with ``preset``'s solver and return the trajectory and the finished solver.
 
     The solver is returned for its diagnostics (``J``, ``ramp_corrections``, ``wall_clamps``).
-    See :func:`simulate_scene` for the arguments and the trajectory layout.
+    See :func:`simulate_scene` for the arguments and the trajectory layout, :func:`scene_solver` for
+    ``position_noise`` and ``noise_seed``.
     """
-    solver, initial_position, particle_type = scene_solver(scene, preset, seed, device)
+    solver, initial_position, particle_type = scene_solver(
+        scene, preset, seed, device, position_noise=position_noise, noise_seed=noise_seed
+    )
     ramps = initial_position[particle_type != WATER_PARTICLE_ID]
     water_position = solver.run(preset.num_frames)  # [T, N_water, 2] float32
     # Ramps are static: the same positions in every frame, after the water (as scene_particles orders them).
@@ -171,12 +197,19 @@ def is_rest_scene(preset: Preset, seed: int, split: str, index: int) -> bool:
     return bool(rest_rng(seed, split, index).uniform() < preset.rest_fraction)
 
 
-def simulate_split_item(preset: Preset, seed: int, split: str, index: int) -> Trajectory:
-    """Trajectory ``index`` of ``split`` in the dataset generated with ``seed`` (key = ``index``)."""
+def split_scene(preset: Preset, seed: int, split: str, index: int) -> tuple[Scene, int]:
+    """The scene of trajectory ``index`` of ``split`` (dataset ``seed``) and the seed of its particle
+    placement (the ``seed`` argument of :func:`simulate_scene`)."""
     rng = scene_rng(seed, split, index)
     sample = sample_rest_scene if is_rest_scene(preset, seed, split, index) else sample_scene
     scene = sample(rng, preset)
-    traj = simulate_scene(scene, preset, seed=int(rng.integers(2**63)))
+    return scene, int(rng.integers(2**63))
+
+
+def simulate_split_item(preset: Preset, seed: int, split: str, index: int) -> Trajectory:
+    """Trajectory ``index`` of ``split`` in the dataset generated with ``seed`` (key = ``index``)."""
+    scene, placement_seed = split_scene(preset, seed, split, index)
+    traj = simulate_scene(scene, preset, seed=placement_seed)
     traj.key = index
     return traj
 
@@ -323,7 +356,7 @@ def _scan_cache(cache: Path, counts: dict[str, int], num_frames: int) -> dict[st
 
 
 @contextmanager
-def _one_thread() -> Iterator[None]:
+def one_thread() -> Iterator[None]:
     """Run torch on one thread inside the block (as a worker would), then restore the caller's setting."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -445,7 +478,7 @@ def generate_dataset(
                 traj = _load_cached(cache_file(split, i), i, preset.num_frames)
                 if not isinstance(traj, Trajectory):  # it loaded a moment ago: changed under us
                     log.warning("%s: %s; simulating it again", cache_file(split, i), traj)
-                    with _one_thread():
+                    with one_thread():
                         traj = _task((preset, seed, split, i, cache_file(split, i)))
             else:
                 traj = next(results)
@@ -455,7 +488,7 @@ def generate_dataset(
 
     try:
         if workers == 1 or missing <= 1:
-            with _one_thread():
+            with one_thread():
                 write_dataset(out, {s: split_items(None, s) for s in splits}, metadata, overwrite=overwrite)
         else:
             # spawn, not fork: a forked child inherits the parent's torch thread pool state and can deadlock.

@@ -1,0 +1,110 @@
+"""Water in free flight falls at g (gnsx/model/freeflight.py): a cluster that touches nothing and moves as one
+body takes the exact free-fall step; one that breaks ranks or comes near a wall or a ramp is the model's."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gnsx.checkpoints import load_simulator
+from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.errors import ConfigError
+from gnsx.model.freeflight import FreeFlight
+from gnsx.model.rollout import rollout
+from gnsx.model.rules import Rules
+
+SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
+GRAVITY = torch.tensor([0.0, -6e-5], dtype=torch.float64)  # per frame^2
+RULE = FreeFlight(
+    gravity=GRAVITY,
+    bounds=torch.tensor([[0.1, 0.9], [0.1, 0.9]], dtype=torch.float64),
+    reach=0.07,
+    tolerance=3e-5,
+)
+
+
+def block(lower, shape=(5, 4), spacing=0.0156, seed=0):
+    """``[n, 2]`` float64 jittered lattice positions with its lower corner at ``lower``."""
+    grid = np.stack(np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij"), -1).reshape(-1, 2)
+    jitter = np.random.default_rng(seed).uniform(-0.1, 0.1, grid.shape)
+    return torch.from_numpy(np.asarray(lower) + (grid + jitter) * spacing)
+
+
+def window_of(current, velocity):
+    return torch.stack([current - velocity, current], dim=1)
+
+
+def test_a_rigid_free_block_falls_at_g_and_a_block_that_breaks_ranks_is_the_models():
+    a, b = block((0.2, 0.5)), block((0.6, 0.5), seed=1)  # 0.3 m apart: two clusters
+    current = torch.cat([a, b])
+    velocity = torch.cat([torch.tensor([[1e-3, -2e-3]]).expand(len(a), 2), torch.zeros(len(b), 2)]).double()
+    velocity[len(a) + 3] += torch.tensor([0.0, 4e-5])  # one particle of b moves off the body's velocity
+    types = torch.full((len(current),), WATER_PARTICLE_ID)
+    window = window_of(current, velocity)
+    model = current + velocity + 1e-6  # whatever the model predicted
+    out, free = RULE.apply(window, model, types)
+    assert free[: len(a)].all() and not free[len(a) :].any()  # one member out of step frees none of b
+    assert torch.allclose(out[: len(a)], current[: len(a)] + velocity[: len(a)] + GRAVITY, rtol=0, atol=1e-15)
+    assert torch.equal(out[len(a) :], model[len(a) :])
+
+
+@pytest.mark.parametrize("where", ["wall", "ramp", "water"])
+def test_a_cluster_near_a_wall_a_ramp_or_other_water_is_not_free(where):
+    a = block((0.4, 0.5))
+    others = {
+        "wall": torch.empty(0, 2, dtype=torch.float64),
+        "ramp": torch.tensor([[0.45, 0.45]], dtype=torch.float64),  # 0.05 below the block: inside clearance
+        "water": torch.tensor([[0.4, 0.45]], dtype=torch.float64),  # within reach of the block: one cluster
+    }[where]
+    if where == "wall":
+        a = a - torch.tensor([0.25, 0.0], dtype=torch.float64)  # lower left corner at x = 0.15 < 0.1 + 0.07
+    current = torch.cat([a, others])
+    types = torch.full((len(current),), WATER_PARTICLE_ID)
+    if where == "ramp":
+        types[len(a) :] = KINEMATIC_PARTICLE_ID
+    velocity = torch.zeros_like(current)
+    velocity[: len(a)] = torch.tensor([0.0, -2e-3])  # the other water (if any) at rest: out of step
+    if where == "wall":
+        velocity[: len(a)] = torch.tensor([-1e-3, 0.0])  # towards the left wall
+    free = RULE.free_particles(window_of(current, velocity), types)
+    assert not free.any()
+    if where != "water":  # moving away from the wall or the ramp: nothing pushes it
+        velocity[: len(a)] = torch.tensor([1e-3, 5e-3]) if where == "wall" else torch.tensor([0.0, 5e-3])
+        assert RULE.free_particles(window_of(current, velocity), types)[: len(a)].all()
+
+
+def test_water_resting_on_the_floor_is_not_free():
+    pool = block((0.3, 0.1), shape=(10, 3))  # bottom row at the floor, at rest: gravity pushes it into it
+    types = torch.full((len(pool),), WATER_PARTICLE_ID)
+    assert not RULE.free_particles(window_of(pool, torch.zeros_like(pool)), types).any()
+
+
+def test_the_shipped_models_rollout_of_a_block_in_free_flight_is_exact_until_it_nears_the_floor():
+    simulator = load_simulator(SHIPPED)
+    rule = FreeFlight.for_simulator(simulator)
+    assert rule is not None and rule.reach == pytest.approx(2 * float(simulator.radius))
+    current = block((0.4, 0.6), shape=(6, 6)).float()
+    velocity = torch.tensor([[0.0, -2e-3]]).expand_as(current)
+    types = torch.full((len(current),), WATER_PARTICLE_ID)
+    steps = 20  # the block's bottom falls from 0.6 to ~0.55: far above the floor's clearance (0.17)
+    g = rule.gravity.float()
+    exact = torch.stack([current + k * velocity + k * (k + 1) / 2 * g for k in range(1, steps + 1)])
+    held = rollout(simulator, window_of(current, velocity), types, steps)
+    model = rollout(simulator, window_of(current, velocity), types, steps, rules=Rules(free_flight=False))
+    # float32 round-off only (velocities are position differences: ~1e-7 per step, summed over 20 steps)
+    assert (held - exact).abs().max() < 2e-5
+    assert (model - exact).abs().max() > 1e-4  # the model alone shuffles the block's particles (3.9 mm)
+
+
+def test_rules_read_from_configs_and_from_older_results():
+    assert Rules() == Rules.from_mapping(None) == Rules.from_mapping({})
+    assert Rules.from_mapping({"free_flight": False}) == Rules(free_flight=False)
+    with pytest.raises(ConfigError, match=r"evaluate.rules.free_flght: unknown rule"):
+        Rules.from_mapping({"free_flght": True}, "evaluate.rules")
+    with pytest.raises(ConfigError, match=r"rules.hold_rest=yes: must be true or false"):
+        Rules.from_mapping({"hold_rest": "yes"})
+    # results.json before the rules block: the two rules of the time at the top level, or nothing at all.
+    assert Rules.from_results({}) == Rules.none()
+    assert Rules.from_results({"hold_rest": True, "incompressible": True}) == Rules(free_flight=False)
+    assert Rules.from_results({"rules": Rules().to_dict()}) == Rules()
