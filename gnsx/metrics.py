@@ -66,6 +66,24 @@ def position_mse(predicted, true, mask=None) -> float:
     return float(error.mean())
 
 
+def centre_of_mass_mse(predicted, true, mask=None) -> float:
+    """The part of :func:`position_mse` that is the particles' common offset: the squared error of their mean
+    position (the centre of mass of equal-mass particles), per coordinate, averaged over frames.
+
+    ``position_mse = centre_of_mass_mse + (MSE after removing each frame's mean offset)``, so the rest is the
+    error of the water's shape, not of where it is as a whole.
+
+    Args:
+        predicted, true: ``[T, N, D]`` positions (data units); mask: ``[N]`` bool (None: all particles).
+    """
+    error = _numpy(predicted).astype(np.float64) - _numpy(true)
+    if mask is not None:
+        error = error[:, _numpy(mask).astype(bool)]
+    if error.shape[1] == 0:
+        return float("nan")
+    return float((error.mean(axis=1) ** 2).mean())
+
+
 def position_mse_per_frame(predicted, true, mask=None) -> np.ndarray:
     """``[T]`` position MSE per coordinate of each frame of ``[T, N, D]`` rollouts (mean over particles and
     dimensions)."""

@@ -11,6 +11,8 @@ row key                     meaning (positions in data units, metres for WaterRa
 ``rollout_mse_all``         the same over all particles, static ones included (as DeepMind reports it)
 ``mse_at_10``,              ``rollout_mse`` over the first 10 / 50 predicted frames only (NaN when the rollout
 ``mse_at_50``               predicts fewer frames): short-horizon accuracy, before the errors compound
+``com_mse``                 the part of ``rollout_mse`` that is the water's centre-of-mass error (the rest is
+                            its shape's, :func:`gnsx.metrics.centre_of_mass_mse`)
 ``onestep_mse``             position MSE of single steps from ground-truth inputs (every ``onestep_stride``-th
                             frame)
 ``baseline_mse``            ``rollout_mse`` of the physics-free baseline; ``baseline_mse_at_10``,
@@ -78,6 +80,7 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.health import describe, rollout_health
 from gnsx.metrics import (
+    centre_of_mass_mse,
     earth_movers_distance,
     kinetic_energy,
     kinetic_energy_error,
@@ -111,6 +114,7 @@ _MEAN_KEYS = (
     "rollout_mse",
     "rollout_mse_all",
     *(f"mse_at_{h}" for h in HORIZONS),
+    "com_mse",
     "onestep_mse",
     "baseline_mse",
     *(f"baseline_mse_at_{h}" for h in HORIZONS),
@@ -241,7 +245,8 @@ def rollout_errors(
         metadata: bounds, ``dt`` (energies) and ``default_connectivity_radius`` (neighbour counts).
         emd_every, emd_method: see :func:`score_trajectory`.
     Returns:
-        scalars (``rollout_mse``, ``rollout_mse_all``, ``mse_at_<h>`` for each of :data:`HORIZONS`, ``emd``,
+        scalars (``rollout_mse``, ``rollout_mse_all``, ``com_mse``, ``mse_at_<h>`` for each of
+        :data:`HORIZONS`, ``emd``,
         ``emd_final``, ``kinetic_energy_error``, ``neighbour_ratio``, ``out_of_bounds_fraction``,
         ``out_of_bounds_final``) and ``[T]`` per-frame arrays (NaN where not computed) as in
         :class:`TrajectoryResult`, the baseline's aside.
@@ -271,6 +276,7 @@ def rollout_errors(
     errors = {
         "rollout_mse": position_mse(predicted[frames:], true[frames:], mask),
         "rollout_mse_all": position_mse(predicted[frames:], true[frames:]),
+        "com_mse": centre_of_mass_mse(predicted[frames:], true[frames:], mask),
         **{f"mse_at_{h}": horizon_mse(per_frame["mse"], frames, h) for h in HORIZONS},
         "emd": float(np.mean(emd)),
         "emd_final": float(emd[-1]),

@@ -8,6 +8,7 @@ import torch
 
 from gnsx import metrics
 from gnsx.metrics import (
+    centre_of_mass_mse,
     earth_movers_distance,
     kinetic_energy,
     kinetic_energy_error,
@@ -152,3 +153,22 @@ def test_out_of_bounds_counts_particles_outside_the_walls():
     np.testing.assert_array_equal(out_of_bounds(frames, bounds), [2, 0])
     np.testing.assert_array_equal(out_of_bounds(frames, bounds, np.array([True, True, False])), [1, 0])
     assert int(out_of_bounds(frames[0], bounds)) == 2
+
+
+def test_centre_of_mass_error_is_the_common_offset_part_of_the_mse():
+    rng = np.random.default_rng(0)
+    true = rng.uniform(0.1, 0.9, (5, 40, 2))
+    shift = np.array([0.03, -0.04])
+    # A rigid shift is all centre of mass; a shuffle that keeps the mean is all shape.
+    assert centre_of_mass_mse(true + shift, true) == pytest.approx(position_mse(true + shift, true))
+    shuffled = true.copy()
+    shuffled[:, :20] += 0.01
+    shuffled[:, 20:] -= 0.01
+    assert centre_of_mass_mse(shuffled, true) == pytest.approx(0.0, abs=1e-20)
+    # In general the two parts add up to the MSE.
+    noisy = true + rng.normal(0.0, 0.02, true.shape) + shift
+    offset = (noisy - true).mean(axis=1, keepdims=True)
+    shape_part = position_mse(noisy - offset, true)
+    assert centre_of_mass_mse(noisy, true) + shape_part == pytest.approx(position_mse(noisy, true))
+    mask = np.arange(40) < 10  # only the masked particles count
+    assert centre_of_mass_mse(true + shift, true, mask) == pytest.approx(np.mean(shift**2))
