@@ -9,6 +9,7 @@
 set -euo pipefail
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg
 OUT=${OUT:?set OUT}
+mkdir -p "$OUT"
 PY=python3
 ARGS=(--device cuda --max-seconds "${MAX_SECONDS:-20}" --rollout-memory --rollout-particles 100000)
 if [ "${DRY:-0}" = 1 ]; then
