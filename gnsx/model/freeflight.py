@@ -111,9 +111,7 @@ class FreeFlight:
         near_upper = (bounds[:, 1] - points < self.reach) & (heading > 0)
         touching = (near_lower | near_upper).any(axis=1)
         if static.any():
-            near = tree.sparse_distance_matrix(
-                cKDTree(current[static]), self.reach, output_type="ndarray"
-            )
+            near = tree.sparse_distance_matrix(cKDTree(current[static]), self.reach, output_type="ndarray")
             i, j = near["i"], near["j"]
             towards = np.einsum("kd,kd->k", heading[i], current[static][j] - points[i]) > 0
             touching[i[towards]] = True
