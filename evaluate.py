@@ -28,7 +28,8 @@ from gnsx.config_checks import check_evaluate_config
 def main(cfg: DictConfig) -> float:
     check_evaluate_config(cfg)
     # Imported here: a bad override fails in a second, without loading torch.
-    from gnsx.evaluate import evaluate_checkpoints, rules_of
+    from gnsx.evaluate import evaluate_checkpoints
+    from gnsx.model.rules import Rules
     from gnsx.pipeline import build_loggers
     from gnsx.threads import apply_threads
 
@@ -57,7 +58,7 @@ def main(cfg: DictConfig) -> float:
             strip_count=cfg.render.strip_count,
             loggers=loggers,
             allow_mismatch=bool(OmegaConf.select(cfg, "allow_mismatch", default=False)),
-            rules=rules_of(cfg, "rules"),
+            rules=Rules.from_config(cfg, "rules"),
         )
         for logger in loggers:
             logger.finalize("success")

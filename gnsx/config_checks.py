@@ -136,8 +136,7 @@ def check_rules(cfg: DictConfig, key: str) -> None:
     """The rollout rules block at ``key`` (:class:`gnsx.model.rules.Rules`): known rules, booleans."""
     from gnsx.model.rules import Rules
 
-    block = OmegaConf.select(cfg, key, default=None)
-    Rules.from_mapping(None if block is None else OmegaConf.to_container(block), key)
+    Rules.from_config(cfg, key)
 
 
 def check_simulate_config(cfg: DictConfig, input_frames: int | None = None) -> None:

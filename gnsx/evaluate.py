@@ -49,18 +49,6 @@ def render_comparison(first: dict, metadata: Metadata, path: Path, label: str) -
     return save_animation(frames, path, fps=25)
 
 
-def rules_of(section, where: str) -> Rules:
-    """The :class:`Rules` of a config section's ``rules`` block (absent: all on).
-
-    Raises:
-        ConfigError: an unknown rule or a value that is not a boolean, named as ``where.<key>``.
-    """
-    from omegaconf import OmegaConf
-
-    block = OmegaConf.select(section, "rules", default=None)
-    return Rules.from_mapping(None if block is None else OmegaConf.to_container(block), where)
-
-
 def _read_json(path: Path) -> dict:
     try:
         payload = json.loads(path.read_text())
@@ -86,7 +74,7 @@ def evaluate_run(cfg, simulator: LearnedSimulator, datamodule, run_dir: Path, lo
         for key, default in (("emd_every", 10), ("emd_method", "auto"), ("onestep_stride", 10),
                              ("timing_repeats", 20))
     }  # fmt: skip
-    options["rules"] = rules = rules_of(cfg.evaluate, "evaluate.rules")
+    options["rules"] = rules = Rules.from_config(cfg, "evaluate.rules")
     per_frame: list[dict] = []
     summary, rows, first = evaluate_simulator(
         simulator,
@@ -216,10 +204,11 @@ def evaluate_checkpoints(
             check_fits(simulator, str(checkpoint), metadata.bounds, metadata.default_connectivity_radius,
                        metadata.dim, target)  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
+    rules = rules or Rules()
     results = {
         "split": split,
         "data_root": str(data_root),
-        "rules": (rules := rules or Rules()).to_dict(),
+        "rules": rules.to_dict(),
         "models": [],
     }
     panels: list[np.ndarray] = []

@@ -29,8 +29,9 @@ orders of magnitude. A single particle far from everything is a cluster of its o
 pairwise decoder already makes it. The reach scales with the model's radius: a model with a larger radius
 than the data's gets a longer reach, and fewer of its fresh blocks count as free (README, Decisions).
 
-Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step (9-18% of a
-rollout frame of the shipped weights at 400-2,300 particles).
+Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step
+(``scripts/free_flight_cost.py``: median frames 1-18% slower at 400-2,300 particles, within the spread in two
+of four runs).
 """
 
 from __future__ import annotations

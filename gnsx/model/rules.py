@@ -60,6 +60,15 @@ class Rules:
         return cls(**values)
 
     @classmethod
+    def from_config(cls, config: Any, key: str, where: str | None = None) -> Rules:
+        """Rules from the block at ``key`` of an OmegaConf config (absent: all on); errors name ``where``
+        (default ``key``), e.g. ``evaluate.rules.hold_rest``."""
+        from omegaconf import OmegaConf
+
+        block = OmegaConf.select(config, key, default=None)
+        return cls.from_mapping(None if block is None else OmegaConf.to_container(block), where or key)
+
+    @classmethod
     def from_results(cls, results: Mapping[str, Any]) -> Rules:
         """The rules a ``results.json`` was scored with. Files written before the ``rules`` block name
         ``incompressible`` and ``hold_rest`` at the top level, or nothing (the boundary alone); neither had

@@ -525,17 +525,20 @@ class LearnedSimulator(nn.Module):
             )
         true_sequence = position_sequence
         position_sequence = true_sequence[:, :frames]
+        # The most recent input's deviation from the truth: the noise, or where the pushed model got to.
+        deviation = None
         if noise_std > 0:
             noise = random_walk_noise(position_sequence, noise_std, particle_type, generator=generator)
             position_sequence = position_sequence + noise
+            deviation = noise[:, -1]
         if pushforward_steps > 0:
             with torch.no_grad():
                 for _ in range(pushforward_steps):
                     moved = self.predict_positions(position_sequence, particle_type, batch)
                     position_sequence = torch.cat([position_sequence[:, 1:], moved.unsqueeze(1)], dim=1)
-        # The most recent input's deviation from the truth: the noise, plus the model's drift if pushed.
-        deviation = position_sequence[:, -1] - true_sequence[:, -1]
-        next_position = next_position + (1.0 - position_correction) * deviation
+            deviation = position_sequence[:, -1] - true_sequence[:, -1]
+        if deviation is not None:
+            next_position = next_position + (1.0 - position_correction) * deviation
         predicted = self(position_sequence, particle_type, batch)
         target = self.normalized_target(next_position, position_sequence)
         return predicted, target
