@@ -67,7 +67,7 @@ pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e
 		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_DIR) $(ARGS)
 	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
 
-bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. ARGS='--batch-size 2 8 --threads 2'
+bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. ARGS='--batch-size 2 8 --threads 2 --precision 32-true bf16-mixed'
 	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)
 	$(PY) -m gnsx.throughput --data $(DATA) $(ARGS)
 

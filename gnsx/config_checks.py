@@ -17,6 +17,18 @@ from omegaconf import DictConfig, OmegaConf
 from gnsx.cli import check_int, check_number
 from gnsx.errors import ConfigError
 
+#: ``trainer.precision`` values: gnsx's ``auto`` (:mod:`gnsx.precision`) and Lightning's own.
+TRAINER_PRECISIONS = (
+    "auto",
+    "32-true",
+    "32",
+    "bf16-mixed",
+    "16-mixed",
+    "bf16-true",
+    "16-true",
+    "64-true",
+    "64",
+)
 #: Largest seed Lightning's ``seed_everything`` takes (numpy's limit).
 MAX_SEED = 2**32 - 1
 
@@ -84,6 +96,11 @@ def check_train_config(cfg: DictConfig) -> None:
             raise ConfigError(f"train.max_time={max_time}", "expected DD:HH:MM:SS, seconds or null") from None
         if not seconds > 0:
             raise ConfigError(f"train.max_time={max_time}", "must be a positive duration (or null)")
+    precision = str(_get(cfg, "trainer.precision", "32-true"))
+    if precision not in TRAINER_PRECISIONS:
+        raise ConfigError(
+            f"trainer.precision={precision}", f"expected one of {', '.join(TRAINER_PRECISIONS)}"
+        )
     check_int(_get(cfg, "data.batch_size"), "data.batch_size", minimum=1)
     check_int(_get(cfg, "data.num_workers"), "data.num_workers", minimum=0)
     check_int(_get(cfg, "evaluate.max_trajectories"), "evaluate.max_trajectories", 1, allow_none=True)

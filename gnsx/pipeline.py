@@ -45,6 +45,7 @@ from gnsx.errors import ConfigError, GnsxError, RunFailed
 from gnsx.evaluate import evaluate_run
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.numerics import Diverged
+from gnsx.precision import resolve_precision
 from gnsx.resilience import AtomicCheckpointIO, Heartbeat, remove_stale_temporaries, wall_clock_checkpoint
 from gnsx.scoring import gravity_per_frame
 from gnsx.system import GNSSystem
@@ -213,8 +214,13 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
     if minutes:
         checkpoints.append(wall_clock_checkpoint(ckpt_dir, float(minutes)))
     remove_stale_temporaries(ckpt_dir)
+    trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
+    requested = trainer_args.get("precision", "32-true")
+    trainer_args["precision"] = resolve_precision(requested, trainer_args.get("accelerator", "auto"))
+    if str(requested) == "auto":
+        log.info("Precision: %s (trainer.precision=auto, gnsx.precision)", trainer_args["precision"])
     return L.Trainer(
-        **OmegaConf.to_container(cfg.trainer, resolve=True),
+        **trainer_args,
         plugins=[AtomicCheckpointIO()],
         gradient_clip_val=OmegaConf.select(train, "gradient_clip_val", default=None),
         gradient_clip_algorithm="norm",
@@ -505,6 +511,7 @@ def _train_and_evaluate(
         write_json(run_dir / "results.json", record)
 
     trainer = build_trainer(cfg, run_dir, loggers, callbacks=[clock, Heartbeat(beat)])
+    record["precision"] = str(trainer.precision)
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:
         trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))

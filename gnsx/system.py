@@ -215,12 +215,16 @@ class GNSSystem(L.LightningModule):
 
     # -- validation: full rollouts ---------------------------------------------------------------------
     def validation_step(self, trajectory: dict, batch_idx: int) -> None:
-        metrics = evaluate_trajectory(
-            self.simulator,
-            trajectory["position"],
-            trajectory["particle_type"],
-            onestep_stride=self.hparams.onestep_stride,
-        )
+        # Rollouts are scored in fp32 whatever the training precision (gnsx.precision): under bf16-mixed,
+        # Lightning's autocast would otherwise reach the rollout, and the checkpoint choice would rest on
+        # bf16 rollouts that evaluation never runs.
+        with torch.autocast(self.device.type, enabled=False):
+            metrics = evaluate_trajectory(
+                self.simulator,
+                trajectory["position"],
+                trajectory["particle_type"],
+                onestep_stride=self.hparams.onestep_stride,
+            )
         for name, value in metrics.items():
             # sync_dist: under DDP each rank rolls out its share of the trajectories; log their mean.
             self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse", sync_dist=True)

@@ -59,6 +59,7 @@ def measure_training(
     device: str = "cpu",
     seed: int = 0,
     devices: int = 1,
+    precision: str = "32-true",
 ) -> dict:
     """Time ``steps`` optimizer steps after ``warmup`` of the Lightning training loop.
 
@@ -70,6 +71,8 @@ def measure_training(
         device: ``"cpu"`` or ``"cuda"``.
         devices: data-parallel processes (DDP; on the CPU over gloo, one per core with one thread each):
             a step then takes ``batch_size`` samples on every process.
+        precision: Lightning's ``Trainer(precision=...)``: ``"32-true"``, ``"bf16-mixed"`` (autocast) or
+            ``"auto"`` (:func:`gnsx.precision.resolve_precision`; the result names what ran).
     Returns:
         ``{"model", "batch_size", "device", "threads", "steps_per_s", "samples_per_s", "ms_per_step",
         "window_steps_per_s": [...]}`` (rates are medians over the windows).
@@ -97,11 +100,16 @@ def measure_training(
         lr_decay_start=0,
         lr_decay_end=10 * (steps + warmup),
     )
+    if precision == "auto":  # imported here: older checkouts (module docstring) have no gnsx.precision
+        from gnsx.precision import resolve_precision
+
+        precision = resolve_precision(precision, device)
     clock = _StepClock()
     trainer = L.Trainer(
         accelerator=device,
         devices=devices,
         strategy="ddp" if devices > 1 else "auto",
+        precision=precision,
         max_steps=warmup + steps,
         limit_val_batches=0,
         num_sanity_val_steps=0,
@@ -124,6 +132,7 @@ def measure_training(
         "device": device,
         "threads": torch.get_num_threads(),
         "devices": devices,
+        "precision": precision,
         "steps_per_s": steps_per_s,
         "samples_per_s": steps_per_s * batch_size * devices,
         "ms_per_step": 1000.0 / steps_per_s,
@@ -151,6 +160,13 @@ def _main(argv: list[str]) -> int:
     parser.add_argument(
         "--devices", type=int, default=1, help="DDP processes (CPU: one per core, --threads 1)"
     )
+    parser.add_argument(
+        "--precision",
+        nargs="+",
+        default=["32-true"],
+        choices=["auto", "32-true", "bf16-mixed"],
+        help="training precision(s) to time (default 32-true; bf16-mixed is autocast; auto: gnsx.precision)",
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = parser.parse_args(argv)
     if not (Path(args.data) / "metadata.json").is_file():
@@ -175,27 +191,32 @@ def _main(argv: list[str]) -> int:
     # Under DDP every process runs this; rank 0 alone prints (the launcher sets LOCAL_RANK for the others).
     report = os.environ.get("LOCAL_RANK", "0") == "0"
     if report:
-        print(f"{'model':<11} {'batch':>5} {'steps/s':>8} {'samples/s':>10} {'ms/step':>8}  device (threads)")
+        print(
+            f"{'model':<11} {'precision':<10} {'batch':>5} {'steps/s':>8} {'samples/s':>10} {'ms/step':>8}"
+            "  device (threads)"
+        )
     for model in args.models:
-        for batch_size in args.batch_size:
-            r = measure_training(
-                args.data,
-                model,
-                batch_size,
-                args.steps,
-                args.warmup,
-                device=args.device,
-                devices=args.devices,
-            )
-            results.append(r)
-            if not report:
-                continue
-            print(
-                f"{model:<11} {batch_size:>5} {r['steps_per_s']:>8.2f} {r['samples_per_s']:>10.1f} "
-                f"{r['ms_per_step']:>8.1f}  {r['device']} ({r['threads']})"
-                + (f" x {args.devices} DDP processes" if args.devices > 1 else ""),
-                flush=True,
-            )
+        for precision in args.precision:
+            for batch_size in args.batch_size:
+                r = measure_training(
+                    args.data,
+                    model,
+                    batch_size,
+                    args.steps,
+                    args.warmup,
+                    device=args.device,
+                    devices=args.devices,
+                    precision=precision,
+                )
+                results.append(r)
+                if not report:
+                    continue
+                print(
+                    f"{model:<11} {precision:<10} {batch_size:>5} {r['steps_per_s']:>8.2f} "
+                    f"{r['samples_per_s']:>10.1f} {r['ms_per_step']:>8.1f}  {r['device']} ({r['threads']})"
+                    + (f" x {args.devices} DDP processes" if args.devices > 1 else ""),
+                    flush=True,
+                )
     if args.json and report:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))

@@ -340,6 +340,12 @@ def _train(overrides: list[str], tmp_path, capsys, case: str, dataset: Path | No
             "error: train.noise_correction=1.5: must be in [0, 1]",
         ),
         (
+            "train: unknown precision",
+            "trainer.precision=fp8",
+            "error: trainer.precision=fp8: expected one of auto, 32-true, 32, bf16-mixed, 16-mixed, "
+            "bf16-true, 16-true, 64-true, 64",
+        ),
+        (
             "train: negative pushforward steps",
             "train.pushforward_steps=-1",
             "error: train.pushforward_steps=-1: must be >= 0",

@@ -15,6 +15,7 @@ from omegaconf import OmegaConf
 
 from gnsx.data.metadata import Metadata
 from gnsx.pipeline import architecture, build_system
+from gnsx.precision import resolve_precision
 from gnsx.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -119,6 +120,8 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
     assert (first / "checkpoints" / "permanent" / "step00000006.ckpt").exists()
     results = json.loads((first / "results.json").read_text())
     assert results["test"]["trajectories"] >= 1 and results["test"]["rollout_mse"] > 0
+    # trainer.precision=auto (the default) ran what this CPU suits, and says which.
+    assert results["precision"] == resolve_precision("auto", "cpu")
     assert (first / "test_rollout.gif").stat().st_size > 0
     state = torch.load(first / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert state["global_step"] == 6

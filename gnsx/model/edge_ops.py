@@ -25,6 +25,20 @@ from torch import Tensor
 from torch.nn.functional import embedding_bag
 
 
+def add_product_(accumulator: Tensor, rows: Tensor, weight_t: Tensor) -> Tensor:
+    """``accumulator += rows @ weight_t`` in place (``[M, H] += [M, K] @ [K, H]``); returns ``accumulator``.
+
+    In-place ops are outside autocast's reach, so under ``bf16-mixed`` training the accumulator (the output
+    of an autocast matmul) is bf16 while ``rows`` or the weights may still be fp32: both take the
+    accumulator's dtype first. In fp32 the casts are no-ops and this is ``addmm_``.
+    """
+    if rows.dtype != accumulator.dtype:
+        rows = rows.to(accumulator.dtype)
+    if weight_t.dtype != accumulator.dtype:
+        weight_t = weight_t.to(accumulator.dtype)
+    return accumulator.addmm_(rows, weight_t)
+
+
 def receiver_offsets(receivers: Tensor, num_receivers: int) -> Tensor | None:
     """CSR row pointer ``[num_receivers + 1]`` of receiver-sorted edges, or None when ``receivers`` is not
     sorted (then the sums fall back to ``index_add_``).

@@ -38,7 +38,8 @@ import torch
 from torch import Tensor, nn
 
 from gnsx.model.culling import plan_culling
-from gnsx.model.edge_ops import gather_sum, receiver_offsets, segment_sum
+from gnsx.model.edge_ops import add_product_, gather_sum, receiver_offsets, segment_sum
+from gnsx.model.padding import needs_padding, pad_graph
 
 
 class MLP(nn.Sequential):
@@ -132,14 +133,14 @@ class InteractionNetwork(nn.Module):
         sender_term = x @ weight_sender.t()  # [N, H]
         hidden = gather_sum(receiver_term, sender_term, receivers, senders, offsets)  # [E, H]
         # In place: one pass over the E x H output instead of a separate matmul result and add.
-        hidden.addmm_(edge_attr, weight_edge.t())
+        add_product_(hidden, edge_attr, weight_edge.t())
         messages = self.edge_mlp.after_first(hidden)  # [E, L]
         # Sum over each receiver's incoming edges; backward is messages.grad = grad.index_select(receivers).
         aggregated = segment_sum(messages, receivers, offsets, receiver_x.shape[0])  # [R, L]
         node_first = self.node_mlp.first
         weight_aggregated, weight_node = node_first.weight.split(latent, dim=1)
-        node_hidden = torch.addmm(node_first.bias, receiver_x, weight_node.t()).addmm_(
-            aggregated, weight_aggregated.t()
+        node_hidden = add_product_(
+            torch.addmm(node_first.bias, receiver_x, weight_node.t()), aggregated, weight_aggregated.t()
         )
         x = receiver_x + self.node_mlp.after_first(node_hidden)
         edge_attr = edge_attr + messages if self.edge_residual else messages
@@ -187,9 +188,9 @@ class PairwiseDecoder(nn.Module):
         second_term = h @ weight_second.t()  # [N, H]: h in A's second slot
         forward_hidden = gather_sum(first_term[:num_receivers], second_term, receivers, senders, offsets)
         backward_hidden = gather_sum(second_term[:num_receivers], first_term, receivers, senders, offsets)
-        forward_hidden.addmm_(x, weight_edge.t())  # in place, as phi_e's edge term
+        add_product_(forward_hidden, x, weight_edge.t())  # in place, as phi_e's edge term
         # x_ji W^T = (x_ij * swap_sign) W^T = x_ij (W * swap_sign)^T: flip W's columns, no [E, D + 1] copy.
-        backward_hidden.addmm_(x, (weight_edge * self.swap_sign).t())
+        add_product_(backward_hidden, x, (weight_edge * self.swap_sign).t())
         # A's second layer is linear: A(ij) - A(ji) = (relu(ij) - relu(ji)) W, one [E, D] product for both.
         forces = (torch.relu_(forward_hidden) - torch.relu_(backward_hidden)) @ self.second.weight.t()
         return segment_sum(forces, receivers, offsets, num_receivers)
@@ -269,16 +270,19 @@ class EncodeProcessDecode(nn.Module):
     ) -> Tensor:
         if decode is not None:
             return self._culled(x, edge_index, edge_attr, decode)
+        num_nodes = x.shape[0]
+        if needs_padding(x):  # bf16 on the CPU: a few fixed shapes (gnsx.model.padding)
+            x, edge_index, edge_attr = pad_graph(x, edge_index, edge_attr)
         node_latent = self.node_encoder(x)
         edge_latent = self.edge_encoder(edge_attr)
         offsets = receiver_offsets(edge_index[1], x.shape[0])
         for step in self.processor:
             node_latent, edge_latent = step(node_latent, edge_index, edge_latent, offsets=offsets)
         decoded = self.decoder(node_latent)
-        if self.pair_decoder is None:
-            return decoded
-        pairs = self.pair_decoder(node_latent, edge_index, edge_attr, x.shape[0], offsets)
-        return torch.cat([decoded, pairs], dim=1)
+        if self.pair_decoder is not None:
+            pairs = self.pair_decoder(node_latent, edge_index, edge_attr, x.shape[0], offsets)
+            decoded = torch.cat([decoded, pairs], dim=1)
+        return decoded[:num_nodes]
 
     def _culled(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, decode: Tensor) -> Tensor:
         """The same outputs for the nodes of ``decode``, computing only what they depend on (a shrinking

@@ -63,6 +63,7 @@ from gnsx.model.features import (
 from gnsx.model.graph_network import DECODERS, EncodeProcessDecode
 from gnsx.model.neighbors import METHODS, radius_graph
 from gnsx.model.noise import random_walk_noise
+from gnsx.model.padding import needs_padding
 
 TYPE_ENCODINGS = ("scalar", "embedding")
 
@@ -375,7 +376,9 @@ class LearnedSimulator(nn.Module):
         culled as :meth:`_accelerations` says."""
         if graph is not None:
             return self.network(*graph, decode=decode if self.cull and not bool(decode.all()) else None)
-        if not self.cull or bool(decode.all()):  # nothing to leave out: the full graph, no bookkeeping
+        # Under CPU bf16 autocast the full graph, padded to fixed sizes, beats culling's ever-changing
+        # prefixes (gnsx.model.padding); the decoded rows are the same either way.
+        if not self.cull or needs_padding(position_sequence) or bool(decode.all()):
             node_features, edge_index, edge_attr = self.build_graph(position_sequence, particle_type, batch)
             return self.network(node_features, edge_index, edge_attr)
         self._check_inputs(position_sequence, particle_type)
