@@ -142,13 +142,13 @@ def check_resume(path: str | Path, model: Mapping[str, Any], dim: int, radius: f
     Args:
         model: this run's architecture (:func:`gnsx.pipeline.architecture`).
         dim, radius: this run's data dimension and connectivity radius.
-        name: the override that named the checkpoint (``train.ckpt_path``).
+        name: the override that named the checkpoint (``train.ckpt_path``, ``train.init_weights``).
     Returns:
         the checkpoint dict (:func:`read_checkpoint`).
     Raises:
         CheckpointError: ``"train.ckpt_path=<path>: trained with model latent_size=64, ... but this run's
-            config differs: latent_size 64 (checkpoint) vs 128; resume with the checkpoint's model settings
-            or start a new run"``.
+            config differs: latent_size 64 (checkpoint) vs 128. Use the checkpoint's model settings, or start
+            a new run without train.ckpt_path"``.
     """
     state = read_checkpoint(path)
     hparams = state["hyper_parameters"]
@@ -162,7 +162,7 @@ def check_resume(path: str | Path, model: Mapping[str, Any], dim: int, radius: f
             f"{name}={path}",
             f"trained with model {describe_model(trained)}, dim={hparams.get('dim')}, "
             f"radius={hparams.get('radius')}, but this run's config differs: {'; '.join(differences)}. "
-            "Resume with the checkpoint's model settings, or start a new run without train.ckpt_path",
+            f"Use the checkpoint's model settings, or start a new run without {name}",
         )
     return state
 

@@ -112,18 +112,26 @@ def ensure_dataset(data_cfg: DictConfig) -> Path:
 
 
 def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
-    """A fresh GNSSystem whose data facts (bounds, radius, statistics) come from the dataset's metadata."""
+    """A fresh GNSSystem whose data facts (bounds, radius, statistics) come from the dataset's metadata.
+
+    With ``train.init_weights`` (fine-tuning) the weights, the bounds and the normalisation statistics are the
+    checkpoint's (the weights were trained for those statistics); the schedule and the optimizer start fresh.
+    """
     meta = datamodule.metadata
     train = cfg.train
-    return GNSSystem(
+    facts = {
+        "bounds": [list(map(float, b)) for b in meta.bounds],
+        **{key: list(getattr(meta, key)) for key in ("vel_mean", "vel_std", "acc_mean", "acc_std")},
+    }
+    init = resolve_checkpoint(OmegaConf.select(train, "init_weights", default=None), "train.init_weights")
+    state = read_checkpoint(init) if init is not None else None
+    if state is not None:
+        facts = {key: state["hyper_parameters"][key] for key in facts}
+    system = GNSSystem(
         model=model_arguments(cfg.model, meta),
         dim=meta.dim,
-        bounds=[list(map(float, b)) for b in meta.bounds],
         radius=float(cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius),
-        vel_mean=list(meta.vel_mean),
-        vel_std=list(meta.vel_std),
-        acc_mean=list(meta.acc_mean),
-        acc_std=list(meta.acc_std),
+        **facts,
         noise_std=float(train.noise_std if train.noise_std is not None else cfg.model.noise_std),
         noise_decay=float(train.noise_decay),
         noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
@@ -136,6 +144,10 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         huber_delta=float(train.huber_delta),
         max_skipped_steps=int(OmegaConf.select(train, "max_skipped_steps", default=20)),
     )
+    if state is not None:
+        system.load_state_dict(state["state_dict"])
+        log.info("Weights from %s (train.init_weights); a fresh schedule and optimizer", init)
+    return system
 
 
 def build_loggers(cfg: DictConfig, run_dir: Path, name: str | None = None, group: str | None = None) -> list:
@@ -172,13 +184,13 @@ def build_loggers(cfg: DictConfig, run_dir: Path, name: str | None = None, group
     return loggers
 
 
-def resolve_checkpoint(path: str | None) -> str | None:
+def resolve_checkpoint(path: str | None, name: str = "train.ckpt_path") -> str | None:
     """A .ckpt file, or a previous run directory (its ``checkpoints/last.ckpt``); None stays None.
 
     Raises:
-        CheckpointError: naming ``train.ckpt_path`` and what is missing.
+        CheckpointError: naming the override ``name`` and what is missing.
     """
-    return None if path is None else str(checkpoint_path(path, name="train.ckpt_path"))
+    return None if path is None else str(checkpoint_path(path, name=name))
 
 
 def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list | None = None) -> L.Trainer:
@@ -436,8 +448,15 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
     """
     check_train_config(cfg)
     resume = resolve_checkpoint(cfg.train.ckpt_path)
-    if resume is not None:
-        read_checkpoint(resume)  # not a checkpoint, or truncated: said before minutes of data generation
+    init = resolve_checkpoint(OmegaConf.select(cfg.train, "init_weights", default=None), "train.init_weights")
+    if resume is not None and init is not None:
+        raise ConfigError(
+            f"train.init_weights={cfg.train.init_weights}",
+            "cannot be combined with train.ckpt_path (a resumed run has its own weights); set one of them",
+        )
+    for path in (resume, init):
+        if path is not None:
+            read_checkpoint(path)  # not a checkpoint, or truncated: said before minutes of data generation
     ensure_dataset(cfg.data)
     datamodule = ParticleDataModule(
         cfg.data.root,
@@ -449,11 +468,12 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
         pushforward_steps=int(OmegaConf.select(cfg.train, "pushforward_steps", default=0)),
     )
     datamodule.check(["train", "valid", *(["test"] if cfg.evaluate.enabled else [])])
-    if resume is not None:
-        meta = datamodule.metadata
-        radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
-        model = model_arguments(cfg.model, meta)
-        check_resume(resume, model, meta.dim, float(radius), name="train.ckpt_path")
+    for path, name in ((resume, "train.ckpt_path"), (init, "train.init_weights")):
+        if path is not None:
+            meta = datamodule.metadata
+            radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
+            model = model_arguments(cfg.model, meta)
+            check_resume(path, model, meta.dim, float(radius), name=name)
     return datamodule
 
 

@@ -444,6 +444,25 @@ def test_train_resume(case, checkpoint, expected, bad_checkpoints, dataset, tmp_
         assert "this run's config differs: latent_size 8 (checkpoint) vs 16" in message
 
 
+def test_train_init_weights_of_another_model_config(bad_checkpoints, dataset, tmp_path, capsys):
+    path = _checkpoint(bad_checkpoints, "good", tmp_path)
+    case = "train: fine-tune from a checkpoint of another model config"
+    message = _train([f"train.init_weights={path}", "model.latent_size=16"], tmp_path, capsys, case, dataset)
+    assert message.startswith("error: train.init_weights=ckpt/good.ckpt: trained with model latent_size=8")
+
+
+def test_train_init_weights_with_resume(bad_checkpoints, dataset, tmp_path, capsys):
+    path = _checkpoint(bad_checkpoints, "good", tmp_path)
+    case = "train: fine-tune and resume at once"
+    message = _train(
+        [f"train.init_weights={path}", f"train.ckpt_path={path}"], tmp_path, capsys, case, dataset
+    )
+    assert message == (
+        "error: train.init_weights=ckpt/good.ckpt: cannot be combined with train.ckpt_path (a resumed run "
+        "has its own weights); set one of them"
+    )
+
+
 def test_composition_errors_are_one_line():
     from hydra.errors import HydraException
 

@@ -167,3 +167,21 @@ def test_generate_with_the_real_presets(tmp_path, monkeypatch):
     expected = {**presets.get_preset("small").trajectories, "train": 3}
     assert calls[0].trajectories == expected
     assert calls[0].num_frames == presets.get_preset("small").num_frames
+
+
+def test_generate_pool_depth_reaches_the_preset(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("gnsx.mpm.presets")
+    calls = []
+
+    def generate_dataset(out, preset, seed=0, workers=2, overwrite=False, progress=True):
+        calls.append(preset)
+        return Path(out)
+
+    monkeypatch.setitem(
+        sys.modules, "gnsx.mpm.generate", types.SimpleNamespace(generate_dataset=generate_dataset)
+    )
+    argv = ["generate", "--preset", "small", "--out", str(tmp_path / "d"), "--rest-fraction", "1"]
+    assert main([*argv, "--pool-depth", "0.25", "0.75"]) == 0
+    assert calls[0].pool_depth_range == (0.25, 0.75) and calls[0].rest_fraction == 1.0
+    assert main([*argv, "--pool-depth", "0.5", "0.2"]) == 2  # min above max
+    assert "error: --pool-depth: preset 'small': pool_depth_range must be" in capsys.readouterr().err

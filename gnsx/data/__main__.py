@@ -83,6 +83,13 @@ def _parser() -> argparse.ArgumentParser:
         metavar="F",
         help="share of training scenes that start as a pool at rest (preset's, 0 for both presets)",
     )
+    gen.add_argument(
+        "--pool-depth",
+        type=float,
+        nargs=2,
+        metavar=("MIN", "MAX"),
+        help="depth range (m) of those pools (preset's: 0.03 0.25 for small)",
+    )
     gen.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
     gen.set_defaults(run=_generate)
 
@@ -143,6 +150,11 @@ def _generate(args: argparse.Namespace) -> int:
             preset = dataclasses.replace(preset, rest_fraction=args.rest_fraction)
         except ValueError as e:
             raise DataError("--rest-fraction", str(e)) from None
+    if args.pool_depth is not None:
+        try:
+            preset = dataclasses.replace(preset, pool_depth_range=tuple(args.pool_depth))
+        except ValueError as e:
+            raise DataError("--pool-depth", str(e)) from None
     out = generate_dataset(
         args.out, preset, seed=args.seed, workers=args.workers, overwrite=args.overwrite, progress=True
     )
