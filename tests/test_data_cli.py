@@ -152,8 +152,9 @@ def test_generate_passes_preset_with_overridden_counts(tmp_path, monkeypatch, ca
     assert "--preset: unknown preset 'huge'" in capsys.readouterr().err
 
 
-def test_generate_with_the_real_presets(tmp_path, monkeypatch):
-    presets = pytest.importorskip("gnsx.mpm.presets")
+@pytest.fixture
+def generated_presets(monkeypatch) -> list:
+    """The presets ``generate`` would simulate, in call order (the solver itself is replaced)."""
     calls = []
 
     def generate_dataset(out, preset, seed=0, workers=2, overwrite=False, progress=True):
@@ -163,23 +164,21 @@ def test_generate_with_the_real_presets(tmp_path, monkeypatch):
     monkeypatch.setitem(
         sys.modules, "gnsx.mpm.generate", types.SimpleNamespace(generate_dataset=generate_dataset)
     )
+    return calls
+
+
+def test_generate_with_the_real_presets(tmp_path, generated_presets):
+    presets = pytest.importorskip("gnsx.mpm.presets")
+    calls = generated_presets
     assert main(["generate", "--preset", "small", "--out", str(tmp_path / "d"), "--train", "3"]) == 0
     expected = {**presets.get_preset("small").trajectories, "train": 3}
     assert calls[0].trajectories == expected
     assert calls[0].num_frames == presets.get_preset("small").num_frames
 
 
-def test_generate_pool_depth_reaches_the_preset(tmp_path, monkeypatch, capsys):
+def test_generate_pool_depth_reaches_the_preset(tmp_path, generated_presets, capsys):
     pytest.importorskip("gnsx.mpm.presets")
-    calls = []
-
-    def generate_dataset(out, preset, seed=0, workers=2, overwrite=False, progress=True):
-        calls.append(preset)
-        return Path(out)
-
-    monkeypatch.setitem(
-        sys.modules, "gnsx.mpm.generate", types.SimpleNamespace(generate_dataset=generate_dataset)
-    )
+    calls = generated_presets
     argv = ["generate", "--preset", "small", "--out", str(tmp_path / "d"), "--rest-fraction", "1"]
     assert main([*argv, "--pool-depth", "0.25", "0.75"]) == 0
     assert calls[0].pool_depth_range == (0.25, 0.75) and calls[0].rest_fraction == 1.0
