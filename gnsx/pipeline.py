@@ -468,12 +468,13 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
         pushforward_steps=int(OmegaConf.select(cfg.train, "pushforward_steps", default=0)),
     )
     datamodule.check(["train", "valid", *(["test"] if cfg.evaluate.enabled else [])])
-    for path, name in ((resume, "train.ckpt_path"), (init, "train.init_weights")):
-        if path is not None:
-            meta = datamodule.metadata
-            radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
-            model = model_arguments(cfg.model, meta)
-            check_resume(path, model, meta.dim, float(radius), name=name)
+    if resume is not None or init is not None:
+        meta = datamodule.metadata
+        radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
+        model = model_arguments(cfg.model, meta)
+        for path, name in ((resume, "train.ckpt_path"), (init, "train.init_weights")):
+            if path is not None:
+                check_resume(path, model, meta.dim, float(radius), name=name)
     return datamodule
 
 
