@@ -47,6 +47,7 @@ import torch
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.health import rollout_health
+from gnsx.metrics import area_ratio
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.presets import Preset, get_preset
@@ -58,8 +59,6 @@ from gnsx.threads import apply_threads
 VARIANTS = ("raw", "held")
 #: Drift is measured over this many frames at the end of a rollout.
 DRIFT_FRAMES = 100
-#: Water area is counted on cells of this many particle spacings.
-AREA_CELL_SPACINGS = 2.0
 
 
 @dataclass(frozen=True)
@@ -119,20 +118,6 @@ PRECISION_CASE = HardCase(
 )  # fmt: skip
 
 
-def water_area(position: np.ndarray, cell: float) -> float:
-    """Area covered by particles: occupied square cells of side ``cell`` times ``cell^2``.
-
-    Args:
-        position: ``[N, 2]`` positions (m); cell: cell side (m).
-    """
-    position = np.asarray(position, dtype=np.float64)
-    position = position[np.isfinite(position).all(1)]
-    if len(position) == 0:
-        return 0.0
-    cells = np.unique(np.floor(position / cell).astype(np.int64), axis=0)
-    return float(len(cells) * cell * cell)
-
-
 def drift(positions: np.ndarray, mask: np.ndarray, frames: int = DRIFT_FRAMES) -> float:
     """Mean displacement of the ``mask`` particles over the last ``frames`` frames (data units; NaN when the
     rollout is shorter)."""
@@ -187,8 +172,6 @@ def case_metrics(
     health = rollout_health(predicted, particle_type, metadata, first_frame=input_frames)
     if truth_health is None:
         truth_health = rollout_health(truth, particle_type, metadata, first_frame=input_frames)
-    cell = AREA_CELL_SPACINGS * spacing
-    truth_area = water_area(truth[-1, water], cell)
     return {
         "water_particles": int(water.sum()),
         "frames": int(len(truth)),
@@ -202,7 +185,7 @@ def case_metrics(
         "crossings": health["ramp_crossings"],
         "truth_crossings": truth_health["ramp_crossings"],
         "nonfinite": health["nonfinite"],
-        "area_ratio": water_area(predicted[-1, water], cell) / truth_area if truth_area > 0 else float("nan"),
+        "area_ratio": area_ratio(predicted[-1, water], truth[-1, water], spacing),
         "drift_cm": 100 * drift(predicted, water),
         "truth_drift_cm": 100 * drift(truth, water),
         "blew_up": health["blew_up"],

@@ -75,6 +75,8 @@ def model_arguments(model_cfg: DictConfig, meta: Metadata) -> dict[str, Any]:
     model = architecture(model_cfg)
     if model.get("decoder") == "pairwise" and model.get("gravity") is None:
         model["gravity"] = gravity_per_frame(meta).tolist()
+    # The rules' length scale is the data's, whatever radius the graph uses (LearnedSimulator.rules_radius).
+    model["data_radius"] = float(meta.default_connectivity_radius)
     return model
 
 

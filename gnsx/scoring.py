@@ -25,6 +25,9 @@ row key                     meaning (positions in data units, metres for WaterRa
                             mass
 ``neighbour_ratio``         mean over the EMD frames of (mean neighbours within R, predicted / true): above 1
                             the rollout compressed the fluid (volume loss), below 1 it spread it
+``area_ratio_final``        area the water covers at the last frame, predicted / true
+                            (:func:`gnsx.metrics.area_ratio`, cells of 2 particle spacings, the spacing
+                            measured on the first true frame): below 1 the water was lumped or packed
 ``out_of_bounds_fraction``  dynamic particles outside the walls, fraction, mean over predicted frames;
                             ``out_of_bounds_final``: their number at the last frame
 ``nonfinite``               :func:`gnsx.health.rollout_health` of the prediction: NaN/Inf coordinates; the
@@ -80,12 +83,14 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.health import describe, rollout_health
 from gnsx.metrics import (
+    area_ratio,
     centre_of_mass_mse,
     earth_movers_distance,
     kinetic_energy,
     kinetic_energy_error,
     neighbour_count,
     out_of_bounds,
+    particle_spacing,
     position_mse,
     position_mse_per_frame,
 )
@@ -123,6 +128,7 @@ _MEAN_KEYS = (
     "emd_final",
     "kinetic_energy_error",
     "neighbour_ratio",
+    "area_ratio_final",
     "out_of_bounds_fraction",
     "out_of_bounds_final",
     "ramp_crossings",
@@ -247,7 +253,8 @@ def rollout_errors(
     Returns:
         scalars (``rollout_mse``, ``rollout_mse_all``, ``com_mse``, ``mse_at_<h>`` for each of
         :data:`HORIZONS`, ``emd``,
-        ``emd_final``, ``kinetic_energy_error``, ``neighbour_ratio``, ``out_of_bounds_fraction``,
+        ``emd_final``, ``kinetic_energy_error``, ``neighbour_ratio``, ``area_ratio_final``,
+        ``out_of_bounds_fraction``,
         ``out_of_bounds_final``) and ``[T]`` per-frame arrays (NaN where not computed) as in
         :class:`TrajectoryResult`, the baseline's aside.
     """
@@ -284,6 +291,7 @@ def rollout_errors(
             per_frame["kinetic_energy_pred"][frames:], per_frame["kinetic_energy_true"][frames:]
         ),
         "neighbour_ratio": float(np.mean(ratio)) if set_frames else float("nan"),
+        "area_ratio_final": area_ratio(predicted[-1, mask], true[-1, mask], particle_spacing(true[0, mask])),
         "out_of_bounds_fraction": float(
             np.mean(per_frame["out_of_bounds"][frames:]) / max(int(mask.sum()), 1)
         ),
@@ -541,6 +549,7 @@ _TABLE_COLUMNS = (
     ("base EMD", "baseline_emd", 9, ".2e"),
     ("KE err", "kinetic_energy_error", 7, ".2f"),
     ("nbr ratio", "neighbour_ratio", 9, ".3f"),
+    ("area", "area_ratio_final", 5, ".2f"),
     ("ms/frame", "ms_per_frame", 9, ".1f"),
 )
 

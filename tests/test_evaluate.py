@@ -94,6 +94,7 @@ def test_perfect_rollout_has_zero_error():
     assert errors["rollout_mse"] == 0 and errors["rollout_mse_all"] == 0
     assert errors["emd"] == pytest.approx(0, abs=1e-8) and errors["kinetic_energy_error"] == 0
     assert errors["neighbour_ratio"] == pytest.approx(1.0) and errors["out_of_bounds_final"] == 0
+    assert errors["area_ratio_final"] == 1.0
     # EMD on frames 3, 6, 9 (multiples of 3 after the 2 input frames, and the last), NaN elsewhere.
     assert list(np.flatnonzero(~np.isnan(per_frame["emd"]))) == [3, 6, 9]
     assert np.isnan(per_frame["mse"][:2]).all() and (per_frame["mse"][2:] == 0).all()
@@ -119,7 +120,8 @@ def test_compressed_rollout_shows_volume_loss_and_escapes_show_out_of_bounds():
     predicted = true.copy()
     centre = true[:, :10].mean(1, keepdims=True)
     predicted[2:, :10] = (centre + 0.2 * (true[:, :10] - centre))[2:]  # water squeezed to a fifth of its size
-    assert rollout_errors(predicted, true, types, 2, META)[0]["neighbour_ratio"] > 1.5
+    squeezed = rollout_errors(predicted, true, types, 2, META)[0]
+    assert squeezed["neighbour_ratio"] > 1.5 and squeezed["area_ratio_final"] < 1.0
     predicted = true.copy()
     predicted[-1, :4] = [0.95, 0.5]  # 4 of 10 water particles leave through the right wall in the last frame
     errors, _ = rollout_errors(predicted, true, types, 2, META)

@@ -108,3 +108,27 @@ def test_rules_read_from_configs_and_from_older_results():
     assert Rules.from_results({}) == Rules.none()
     assert Rules.from_results({"hold_rest": True, "incompressible": True}) == Rules(free_flight=False)
     assert Rules.from_results({"rules": Rules().to_dict()}) == Rules()
+
+
+def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():
+    """A model whose graph reaches 0.05 on data of radius 0.035 keeps the MPM's reach (2 x 0.035): with the
+    model's radius free flight reached 0.1 and missed most fresh blocks (README, Decisions)."""
+    from gnsx.model.rest import RestHold
+    from gnsx.model.simulator import LearnedSimulator
+
+    facts = dict(
+        dim=2,
+        bounds=[[0.1, 0.9], [0.1, 0.9]],
+        vel_mean=[0.0, 0.0],
+        vel_std=[1e-3, 1e-3],
+        acc_mean=[0.0, -6e-5],
+        acc_std=[1e-4, 1e-4],
+        decoder="pairwise",
+    )
+    wide = LearnedSimulator(radius=0.05, data_radius=0.035, **facts)
+    assert FreeFlight.for_simulator(wide).reach == pytest.approx(0.07)
+    assert RestHold.for_simulator(wide).radius == pytest.approx(0.035)
+    # Checkpoints saved before data_radius existed used the data's radius as the model's.
+    older = LearnedSimulator(radius=0.035, **facts)
+    assert older.rules_radius == 0.035 and FreeFlight.for_simulator(older).reach == pytest.approx(0.07)
+    assert LearnedSimulator(**wide.config).rules_radius == 0.035  # travels with the checkpoint's config

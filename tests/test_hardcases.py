@@ -6,15 +6,8 @@ import numpy as np
 import pytest
 from test_simulator import make_simulator
 
-from gnsx.hardcases import CASES, drift, format_report, run_suite, water_area
+from gnsx.hardcases import CASES, drift, format_report, run_suite
 from gnsx.mpm.presets import get_preset
-
-
-def test_water_area_counts_occupied_cells():
-    square = np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(-1, 2) * 0.01 + 0.0005
-    assert water_area(square, 0.01) == pytest.approx(100 * 1e-4)
-    assert water_area(square * 0.5, 0.01) == pytest.approx(25 * 1e-4)  # squeezed: a quarter of the area
-    assert water_area(np.full((3, 2), np.nan), 0.01) == 0.0
 
 
 def test_drift_is_the_mean_displacement_over_the_last_frames():

@@ -172,3 +172,25 @@ def test_centre_of_mass_error_is_the_common_offset_part_of_the_mse():
     assert centre_of_mass_mse(noisy, true) + shape_part == pytest.approx(position_mse(noisy, true))
     mask = np.arange(40) < 10  # only the masked particles count
     assert centre_of_mass_mse(true + shift, true, mask) == pytest.approx(np.mean(shift**2))
+
+
+def test_water_area_counts_occupied_cells():
+    square = np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(-1, 2) * 0.01 + 0.0005
+    assert metrics.water_area(square, 0.01) == pytest.approx(100 * 1e-4)
+    assert metrics.water_area(square * 0.5, 0.01) == pytest.approx(25 * 1e-4)  # a quarter
+    assert metrics.water_area(np.full((3, 2), np.nan), 0.01) == 0.0
+
+
+def test_area_ratio_sees_water_packed_and_spread_and_the_spacing_is_measured():
+    rng = np.random.default_rng(0)
+    lattice = np.stack(np.meshgrid(np.arange(20), np.arange(10)), -1).reshape(-1, 2) * 0.0156 + 0.2
+    jittered = lattice + rng.uniform(-0.1, 0.1, lattice.shape) * 0.0156
+    spacing = metrics.particle_spacing(jittered)
+    assert spacing == pytest.approx(0.0156, rel=0.15)
+    assert metrics.area_ratio(jittered, jittered, spacing) == 1.0
+    centre = jittered.mean(0)
+    packed = centre + (jittered - centre) * 0.5  # the same particles in half the width and height
+    assert metrics.area_ratio(packed, jittered, spacing) == pytest.approx(0.25, abs=0.1)
+    assert metrics.area_ratio(centre + (jittered - centre) * 2.0, jittered, spacing) > 2.0
+    assert np.isnan(metrics.area_ratio(jittered, np.full((3, 2), np.nan), spacing))
+    assert np.isnan(metrics.particle_spacing(lattice[:1]))

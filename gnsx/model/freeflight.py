@@ -26,8 +26,10 @@ ramp's collider nodes 1 cell from the segment), so 1.3, 2.2 and 2.6 radii on the
 itself sees only one radius. On the 8 validation trajectories (README, Decisions) one, two and three radii
 could not be told apart over the whole rollout, and one and two cut the error of the first 10 frames by three
 orders of magnitude. A single particle far from everything is a cluster of its own and falls at g, as the
-pairwise decoder already makes it. The reach scales with the model's radius: a model with a larger radius
-than the data's gets a longer reach, and fewer of its fresh blocks count as free (README, Decisions).
+pairwise decoder already makes it. The radii are the data's (:attr:`LearnedSimulator.rules_radius`), not
+the model's: the MPM's reach does not grow with the model's graph. (When it did, a model with radius 0.05
+instead of 0.035 had a reach of 0.1, fewer fresh blocks counted as free, and its MSE over the first 10
+frames was ~250x worse; README, Decisions.)
 
 Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step
 (``scripts/free_flight_cost.py``: median frames 1-18% slower at 400-2,300 particles, within the spread in two
@@ -83,7 +85,7 @@ class FreeFlight:
         return cls(
             gravity=(free_fall * simulator.acc_std + simulator.acc_mean).detach().cpu(),
             bounds=simulator.bounds.detach().cpu(),
-            reach=reach * float(simulator.radius),
+            reach=reach * float(simulator.rules_radius),
             tolerance=tolerance * float(simulator.vel_std.norm()),
         )
 

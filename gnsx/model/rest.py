@@ -70,7 +70,8 @@ class RestHold:
             gravity = float((simulator.free_fall * simulator.acc_std + simulator.acc_mean).norm())
         else:
             gravity = float(simulator.acc_std.norm())
-        return cls(speed * vel, acceleration * gravity, wake_acceleration * gravity, float(simulator.radius))
+        radius = float(simulator.rules_radius)
+        return cls(speed * vel, acceleration * gravity, wake_acceleration * gravity, radius)
 
     def apply(self, window: Tensor, next_position: Tensor, moves: Tensor) -> Tensor:
         """``next_position`` ``[N, D]`` with the held particles of ``moves`` ``[N]`` (bool) at their current

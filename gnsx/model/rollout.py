@@ -80,7 +80,8 @@ def rollout(
     rules = (rules or Rules()) if constrain else Rules.none()
     limit = None
     if rules.incompressible:
-        limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, float(simulator.radius))
+        radius = float(simulator.rules_radius)
+        limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, radius)
     rest = RestHold.for_simulator(simulator) if rules.hold_rest else None
     flight = FreeFlight.for_simulator(simulator) if rules.free_flight else None
     window = initial_positions

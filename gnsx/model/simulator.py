@@ -113,6 +113,9 @@ class LearnedSimulator(nn.Module):
         compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
             C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes
             speed only, not the results (to float rounding) nor the parameters; docs/speed.md has figures.
+        data_radius: the dataset's connectivity radius (data units), the length scale of the rollout's rules
+            (:attr:`rules_radius`); None: ``radius``. Not part of the network: it matters only when the
+            model's radius differs from the data's (``model.radius=0.05``).
 
     Attributes:
         input_frames: ``history + 1``, the number of position frames :meth:`forward` reads.
@@ -147,6 +150,7 @@ class LearnedSimulator(nn.Module):
         decoder: str = "node",
         gravity: Sequence[float] | None = None,
         compile: bool = False,
+        data_radius: float | None = None,
     ):
         super().__init__()
         self.config = {
@@ -174,6 +178,7 @@ class LearnedSimulator(nn.Module):
             "decoder": str(decoder),
             "gravity": None if gravity is None else [float(v) for v in gravity],
             "compile": bool(compile),
+            "data_radius": None if data_radius is None else float(data_radius),
         }
         self._check_config()
         cfg = self.config
@@ -234,6 +239,8 @@ class LearnedSimulator(nn.Module):
                 raise ValueError(f"LearnedSimulator: {name} must be > 0, got {cfg[name]}")
         if not cfg["radius"] > 0:
             raise ValueError(f"LearnedSimulator: radius must be > 0, got {cfg['radius']}")
+        if cfg["data_radius"] is not None and not cfg["data_radius"] > 0:
+            raise ValueError(f"LearnedSimulator: data_radius must be None or > 0, got {cfg['data_radius']}")
         if cfg["history"] < 1:
             raise ValueError(f"LearnedSimulator: history must be >= 1, got {cfg['history']}")
         if cfg["type_encoding"] not in TYPE_ENCODINGS:
@@ -279,6 +286,15 @@ class LearnedSimulator(nn.Module):
     def hops(self) -> int:
         """Graph hops that can change a prediction: ``mp_steps``, plus one for the pairwise decoder."""
         return self.network.hops
+
+    @property
+    def rules_radius(self) -> float:
+        """Length scale of the rollout's rules (free flight's reach, the rest hold's neighbourhood, the
+        density kernel), data units: the dataset's connectivity radius, which measures the data's physics (its
+        particle spacing and the MPM grid's reach), whatever radius the model's graph uses; the model's radius
+        for checkpoints saved before it was recorded (they all used the dataset's)."""
+        data_radius = self.config["data_radius"]
+        return self.radius if data_radius is None else data_radius
 
     @property
     def reach(self) -> float:
