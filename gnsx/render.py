@@ -17,8 +17,8 @@ import imageio.v3 as iio
 import numpy as np
 from matplotlib import colormaps
 from PIL import Image, ImageDraw
-from scipy.spatial import cKDTree
 
+from gnsx import metrics
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 
 BACKGROUND = np.array([12, 14, 28], np.uint8)
@@ -61,28 +61,17 @@ def _viewport(bounds: np.ndarray, size: int) -> tuple[np.ndarray, float]:
 
 
 def particle_spacing(position: np.ndarray, particle_type: np.ndarray) -> tuple[float | None, float | None]:
-    """Typical distance between neighbouring particles (data units): ``(dynamic, static)``.
-
-    Each is the median, over that kind of particle, of the mean distance to its 4 nearest neighbours of
-    the same kind (None where fewer than 2 have finite positions). The 4-neighbour mean gives the lattice
-    spacing s of square, hexagonal and jittered lattices alike (1.00 s on each), and 0.93-1.03 s on MPM
-    frames of the ``small`` and ``waterramps`` presets, settled pools included; the nearest-neighbour
-    distance alone reads 0.5-0.75 s on jittered or MPM particles (which form close pairs) and would size
-    discs that leave gaps. For static particles, on lines (ramps), it is the nearest-neighbour distance,
-    the spacing along the line.
+    """Typical distance between neighbouring particles (data units): ``(dynamic, static)``, each
+    :func:`gnsx.metrics.particle_spacing` of that kind of particle among its own kind (4 neighbours for
+    water, whose nearest-neighbour distance alone would size discs that leave gaps; 1 for the static
+    particles on ramps, the spacing along the line). None where fewer than 2 have finite positions.
     """
     position = np.asarray(position, np.float64)
     static = np.asarray(particle_type) == KINEMATIC_PARTICLE_ID
-    finite = np.isfinite(position).all(axis=1)
     out = []
-    for points, k in ((position[~static & finite], 4), (position[static & finite], 1)):
-        k = min(k, len(points) - 1)
-        if k < 1:
-            out.append(None)
-            continue
-        dist, _ = cKDTree(points).query(points, k=k + 1)
-        value = float(np.median(dist[:, 1:].mean(axis=1)))
-        out.append(value if value > 0 else None)
+    for points, neighbours in ((position[~static], 4), (position[static], 1)):
+        value = metrics.particle_spacing(points, neighbours)
+        out.append(value if value > 0 else None)  # NaN (too few particles) is not > 0
     return out[0], out[1]
 
 
