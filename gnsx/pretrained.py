@@ -90,24 +90,75 @@ def best_validation_checkpoint(run_dir: Path) -> tuple[Path, float]:
     return saved[step], mse
 
 
+def best_scored_checkpoint(results: list[Path]) -> tuple[Path, float, int]:
+    """The checkpoint with the lowest mean rollout MSE over every trajectory of one or more ``evaluate.py``
+    ``results.json`` files (say, the validation split and a further fresh split), that mean, and the number of
+    trajectories it is taken over.
+
+    For when the logged validation curve no longer describes the simulator: a change to the rollout's rules
+    changes every checkpoint's score, and the saved checkpoints are scored again with ``evaluate.py
+    "checkpoint=[...]" split=valid``. Every file must score the same checkpoints.
+
+    Raises:
+        DataError: a file that is not an evaluation's results, or files scoring different checkpoints.
+    """
+    pooled: dict[str, list[float]] = {}
+    for path in results:
+        try:
+            models = json.loads(Path(path).read_text())["models"]
+            scores = {m["checkpoint"]: [float(r["rollout_mse"]) for r in m["rows"]] for m in models}
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            raise DataError(str(path), f"not an evaluate.py results.json ({error})") from None
+        if pooled and set(scores) != set(pooled):
+            raise DataError(str(path), "scores other checkpoints than " + str(results[0]))
+        for checkpoint, values in scores.items():
+            pooled.setdefault(checkpoint, []).extend(values)
+    if not pooled:
+        raise DataError(str(results[0]) if results else "results", "no scored checkpoint")
+    means = {checkpoint: sum(v) / len(v) for checkpoint, v in pooled.items() if v}
+    best = min(means, key=means.__getitem__)
+    return Path(best), means[best], len(pooled[best])
+
+
 def score_on_test_split(checkpoint: Path, data_root: Path, work_dir: Path) -> dict:
-    """Test-split metrics of a checkpoint in the layout of a run's ``results.json`` (``test``, ``rows``)."""
+    """Test-split metrics of a checkpoint in the layout of a run's ``results.json`` (``test``, ``rows``, and
+    the ``rules`` its rollouts were held by, so that they can be reproduced)."""
     from gnsx.evaluate import evaluate_checkpoints
 
     payload = evaluate_checkpoints([checkpoint], data_root, work_dir, render=False, save_rollouts=False)
     model = payload["models"][0]
-    return {"parameters": model["parameters"], "test": model["summary"], "rows": model["rows"]}
+    return {
+        "parameters": model["parameters"],
+        "test": model["summary"],
+        "rows": model["rows"],
+        "rules": payload["rules"],
+    }
 
 
-def export(run_dir: Path, dest: Path, checkpoint: Path | None = None, select_best_val: bool = False) -> dict:
+def export(
+    run_dir: Path,
+    dest: Path,
+    checkpoint: Path | None = None,
+    select_best_val: bool = False,
+    select_by_scores: list[Path] | None = None,
+) -> dict:
     """Write the shipped-weights folder for ``run_dir``: its ``checkpoints/last.ckpt``, the given checkpoint,
-    or (``select_best_val``) the saved checkpoint with the lowest validation rollout MSE. Any checkpoint other
-    than the last is evaluated on the test split here, so ``results.json`` always describes the shipped
-    weights."""
+    the saved checkpoint with the lowest logged validation rollout MSE (``select_best_val``), or the one
+    with the lowest mean rollout MSE in re-scored evaluations (``select_by_scores``,
+    :func:`best_scored_checkpoint`).
+    Any checkpoint other than the last is evaluated on the test split here, so ``results.json`` always
+    describes the shipped weights."""
     selected = None
     if select_best_val:
         checkpoint, val_mse = best_validation_checkpoint(run_dir)
         selected = {"by": "lowest validation rollout MSE", "val_rollout_mse": val_mse}
+    elif select_by_scores:
+        checkpoint, val_mse, count = best_scored_checkpoint(select_by_scores)
+        files = ", ".join(str(p) for p in select_by_scores)
+        selected = {
+            "by": f"lowest mean rollout MSE over {count} trajectories of {files}",
+            "val_rollout_mse": val_mse,
+        }
     if not run_dir.is_dir():
         raise DataError(str(run_dir), "no such run directory")
     last = run_dir / "checkpoints" / "last.ckpt"
@@ -190,9 +241,17 @@ def _main(argv: list[str]) -> int:
         action="store_true",
         help="the saved checkpoint with the lowest validation rollout MSE",
     )
+    choice.add_argument(
+        "--select-by-scores",
+        nargs="+",
+        type=Path,
+        metavar="RESULTS_JSON",
+        help="the checkpoint with the lowest mean rollout MSE over these evaluate.py results (re-scored "
+        "validation, e.g. after a change to the rollout's rules)",
+    )
     args = parser.parse_args(argv)
     check_output_path(args.dest, "DEST")
-    info = export(args.run_dir, args.dest, args.checkpoint, args.select_best_val)
+    info = export(args.run_dir, args.dest, args.checkpoint, args.select_best_val, args.select_by_scores)
     print(f"exported step {info['global_step']} of {args.run_dir} to {args.dest}")
     return 0
 

@@ -39,6 +39,17 @@ def test_lattice_density_counts_the_neighbours_of_an_interior_particle():
     assert float(limit.density(rest).max()) == pytest.approx(expected)  # an interior particle of the block
 
 
+def test_rest_density_of_a_jittered_block_is_its_lattices():
+    # The MPM's blocks start jittered: close pairs make the nearest-neighbour distance read ~0.7 spacing,
+    # which had put the rest density ~1.6x too high (a limit that never held anything the truth does). The
+    # 4-neighbour spacing keeps it within a few per cent of the lattice's.
+    rest = block(SPACING, n=16)
+    jitter = torch.from_numpy(np.random.default_rng(0).uniform(-0.25, 0.25, rest.shape)) * SPACING
+    limit = DensityLimit.from_particles(rest + jitter, water(len(rest)), RADIUS)
+    assert limit.spacing == pytest.approx(SPACING, rel=0.05)
+    assert limit.rest_density == pytest.approx(lattice_density(SPACING, RADIUS, 2), rel=0.1)
+
+
 def test_water_at_rest_density_does_not_move():
     rest = block(SPACING)
     limit = DensityLimit.from_particles(rest, water(len(rest)), RADIUS)
@@ -81,3 +92,26 @@ def test_float32_positions_come_back_float32():
     out = limit.apply(squeezed, torch.ones(len(squeezed), dtype=torch.bool))
     assert out.dtype == torch.float32 and not torch.equal(out, squeezed)
     assert np.isfinite(out.numpy()).all()
+
+
+def test_the_limit_never_pushes_water_below_the_density_it_had_in_the_last_frame():
+    rest = block(SPACING)
+    limit = DensityLimit.from_particles(rest, water(len(rest)), RADIUS)
+    everyone = torch.ones(len(rest), dtype=torch.bool)
+    limit_density = (1 + limit.tolerance) * limit.rest_density
+    dense = block(0.8 * SPACING)  # a start denser than the limit (as jittered MPM blocks are, here and there)
+    assert float(limit.density(dense).max()) > 1.15 * limit_density
+    allowed = limit.allowed_density(dense, everyone)
+    assert torch.equal(limit.apply(dense, everyone, allowed), dense)  # left as it was
+    assert not torch.equal(limit.apply(dense, everyone), dense)  # the plain limit would spread it
+    # Squeezed further than the last frame: spread back toward the last frame's density, not the limit.
+    squeezed = block(0.7 * SPACING)
+    position = squeezed
+    for _ in range(30):
+        position = limit.apply(position, everyone, allowed)
+    assert float((limit.density(position) / allowed).max()) < 1.02
+    assert float(limit.density(position).max()) > 1.1 * limit_density
+    assert torch.allclose(position.mean(0), squeezed.mean(0), atol=1e-12)  # pairwise, antisymmetric
+    # Water at or below the limit in the last frame may reach the limit, no more.
+    expected = torch.full((len(rest),), limit_density, dtype=torch.float64)
+    assert torch.allclose(limit.allowed_density(rest, everyone), expected)

@@ -77,7 +77,7 @@ def test_shipped_weights_reproduce_their_test_rollout(shipped):
         metadata,
         emd_every=0,
         timing_repeats=0,
-        # Scored before the rules existed (2026-12-01): its results.json names none, the boundary alone.
+        # The rules its results.json records (none, the boundary alone, in files written before 2026-12-01).
         rules=Rules.from_results(results),
     ).row
     recorded = next(r for r in results["rows"] if r["trajectory"] == 0)
@@ -100,6 +100,32 @@ def test_best_validation_checkpoint_matches_logged_step_to_saved_file(tmp_path):
     (run / "csv" / "version_0" / "metrics.csv").write_text("\n".join(rows) + "\n")
     path, mse = best_validation_checkpoint(run)  # step 40 scored best but was not saved
     assert path.name == "step00000020.ckpt" and mse == 0.2
+
+
+def test_best_scored_checkpoint_pools_the_trajectories_of_every_results_file(tmp_path):
+    from gnsx.errors import DataError
+    from gnsx.pretrained import best_scored_checkpoint
+
+    def results(name: str, scores: dict[str, list[float]]):
+        models = [
+            {"checkpoint": c, "rows": [{"rollout_mse": v} for v in values]} for c, values in scores.items()
+        ]
+        path = tmp_path / name
+        path.write_text(json.dumps({"models": models}))
+        return path
+
+    # a wins the 2-trajectory file, b the pooled 6 trajectories (mean 0.25 against 0.3).
+    valid = results("valid.json", {"a.ckpt": [0.1, 0.1], "b.ckpt": [0.2, 0.3]})
+    fresh = results("fresh.json", {"a.ckpt": [0.4, 0.4, 0.4, 0.4], "b.ckpt": [0.3, 0.2, 0.3, 0.2]})
+    assert best_scored_checkpoint([valid]) == (Path("a.ckpt"), pytest.approx(0.1), 2)
+    best, mse, count = best_scored_checkpoint([valid, fresh])
+    assert best == Path("b.ckpt") and mse == pytest.approx(0.25) and count == 6
+    other = results("other.json", {"c.ckpt": [0.1]})
+    with pytest.raises(DataError, match="other checkpoints"):
+        best_scored_checkpoint([valid, other])
+    (tmp_path / "bad.json").write_text("[]")
+    with pytest.raises(DataError, match="bad.json"):
+        best_scored_checkpoint([tmp_path / "bad.json"])
 
 
 def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):

@@ -97,7 +97,8 @@ def rollout(
         if rest is not None:
             next_position = rest.apply(window, next_position, moves)
         if limit is not None:
-            next_position = limit.apply(next_position, moves)
+            allowed = limit.allowed_density(window[:, -1], dynamic)  # no water pushed below its last density
+            next_position = limit.apply(next_position, moves, allowed)
         if boundary is not None:
             next_position = boundary.apply(window[:, -1], next_position, dynamic)
         predictions.append(next_position)
