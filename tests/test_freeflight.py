@@ -21,6 +21,8 @@ RULE = FreeFlight(
     bounds=torch.tensor([[0.1, 0.9], [0.1, 0.9]], dtype=torch.float64),
     reach=0.07,
     tolerance=3e-5,
+    clearance=0.07,
+    lookahead=0.0,
 )
 
 
@@ -74,6 +76,27 @@ def test_a_cluster_near_a_wall_a_ramp_or_other_water_is_not_free(where):
         assert RULE.free_particles(window_of(current, velocity), types)[: len(a)].all()
 
 
+@pytest.mark.parametrize("obstacle", ["floor", "ramp"])
+def test_a_falling_block_stays_free_until_its_next_step_would_bring_it_within_the_clearance(obstacle):
+    """Clearance 0.045 with one frame of look-ahead: at 4.06 mm per frame (after gravity) towards the floor
+    or a ramp particle below, the block is free while its distance, less that step, is at least 0.045."""
+    rule = FreeFlight(GRAVITY, torch.tensor([[0.1, 0.9], [0.1, 0.9]], dtype=torch.float64), 0.07, 3e-5, 0.045)
+    surface = 0.1 if obstacle == "floor" else 0.3
+    velocity_y = -4e-3
+    closing = -velocity_y - float(GRAVITY[1])  # 4.06e-3 per frame
+    for gap, expected in ((0.045 + closing + 1e-3, True), (0.045 + closing - 1e-3, False)):
+        a = block((0.4, 0.0), shape=(4, 3))
+        a[:, 1] += surface + gap - a[:, 1].min()  # lowest particle `gap` above the surface
+        others = torch.tensor([[float(a[a[:, 1].argmin(), 0]), surface]], dtype=torch.float64)
+        current = a if obstacle == "floor" else torch.cat([a, others])
+        types = torch.full((len(current),), WATER_PARTICLE_ID)
+        types[len(a) :] = KINEMATIC_PARTICLE_ID
+        velocity = torch.zeros_like(current)
+        velocity[: len(a), 1] = velocity_y
+        free = rule.free_particles(window_of(current, velocity), types)
+        assert bool(free[: len(a)].all()) is expected and bool(free[: len(a)].any()) is expected, gap
+
+
 def test_water_resting_on_the_floor_is_not_free():
     pool = block((0.3, 0.1), shape=(10, 3))  # bottom row at the floor, at rest: gravity pushes it into it
     types = torch.full((len(pool),), WATER_PARTICLE_ID)
@@ -84,10 +107,11 @@ def test_the_shipped_models_rollout_of_a_block_in_free_flight_is_exact_until_it_
     simulator = load_simulator(SHIPPED)
     rule = FreeFlight.for_simulator(simulator)
     assert rule is not None and rule.reach == pytest.approx(2 * float(simulator.radius))
+    assert rule.clearance == pytest.approx(1.3 * float(simulator.radius)) and rule.lookahead == 1.0
     current = block((0.4, 0.6), shape=(6, 6)).float()
     velocity = torch.tensor([[0.0, -2e-3]]).expand_as(current)
     types = torch.full((len(current),), WATER_PARTICLE_ID)
-    steps = 20  # the block's bottom falls from 0.6 to ~0.55: far above the floor's clearance (0.17)
+    steps = 20  # the block's bottom falls from 0.6 to ~0.55: far above the floor's clearance
     g = rule.gravity.float()
     exact = torch.stack([current + k * velocity + k * (k + 1) / 2 * g for k in range(1, steps + 1)])
     held = rollout(simulator, window_of(current, velocity), types, steps)

@@ -152,6 +152,44 @@ def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "shipped"]
 
 
+def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
+    """The shipping rule: the lowest validation error among checkpoints that keep a pool at rest (the
+    pretrain's step 10k scored best and drifted 4.5 cm per 100 frames; README, Decisions)."""
+    from gnsx.pretrained import export, first_at_rest
+
+    drifts = {"a.ckpt": 4.5, "b.ckpt": 0.06, "c.ckpt": 0.1}
+    ranked = [Path(n) for n in drifts]
+    checkpoint, checked, passed = first_at_rest(ranked, lambda c: drifts[c.name], 0.5)
+    assert checkpoint == Path("b.ckpt") and passed
+    assert [c["drift_cm"] for c in checked] == [4.5, 0.06]  # stops at the first that passes
+    checkpoint, checked, passed = first_at_rest(ranked, lambda c: 9.0, 0.5)
+    assert checkpoint == Path("a.ckpt") and not passed and len(checked) == 3  # none passes: the best by score
+
+    run = tmp_path / "run"
+    (run / "checkpoints" / "permanent").mkdir(parents=True)
+    (run / "csv" / "version_0").mkdir(parents=True)
+    header = {"state_dict": {}, "hyper_parameters": {"model": {}}}
+    for step in (10, 20, 30):
+        torch.save(
+            {**header, "global_step": step}, run / "checkpoints" / "permanent" / f"step{step:08d}.ckpt"
+        )
+    (run / "checkpoints" / "last.ckpt").symlink_to(run / "checkpoints" / "permanent" / "step00000030.ckpt")
+    rows = ["step,val/rollout_mse", "9,0.1", "19,0.3", "29,0.2"]  # step 10 best, then 30, then 20
+    (run / "csv" / "version_0" / "metrics.csv").write_text("\n".join(rows) + "\n")
+    drift_by_step = {10: 4.5, 20: 0.06, 30: 0.3}
+
+    def drift_of(path):
+        return drift_by_step[int(path.stem[4:])]
+
+    dest = tmp_path / "shipped"
+    # Step 30 is the last checkpoint: shipped without a test evaluation (none can run here: no data.root).
+    info = export(run, dest, select_best_val=True, drift_of=drift_of)
+    assert info["global_step"] == 30
+    selected = json.loads((dest / "results.json").read_text())["checkpoint"]["selected"]
+    assert selected["val_rollout_mse"] == 0.2 and selected["rest_gate"]["passed"]
+    assert [c["drift_cm"] for c in selected["rest_gate"]["checked"]] == [4.5, 0.3]
+
+
 def _free_fall_acceleration(simulator, height: float, speed: float, spacing: float = 0.015625) -> float:
     """Median predicted vertical acceleration (m/s^2) of a 12 x 12 jittered block falling at ``speed`` m/s,
     centred ``height`` above the floor, far from the side walls and with no ramp near."""

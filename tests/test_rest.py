@@ -3,7 +3,7 @@ top of its arc (slow, but falling at g), a fast one and one beside a restless ne
 weights keep a pool at rest with it, where they let it slosh without it, and still break a dam placed at
 rest."""
 
-from dataclasses import replace
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,11 +12,10 @@ import torch
 
 from gnsx.checkpoints import load_simulator
 from gnsx.constants import KINEMATIC_PARTICLE_ID
-from gnsx.hardcases import CASES, drift, ground_truth
+from gnsx.hardcases import REST_DRIFT_TARGET_CM, case_start, rest_drift
 from gnsx.model.rest import RestHold
 from gnsx.model.rollout import rollout
 from gnsx.model.rules import Rules
-from gnsx.mpm.presets import get_preset
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
 
@@ -62,33 +61,20 @@ def test_thresholds_follow_the_data_and_the_models_gravity():
     assert float(gravity.norm()) == pytest.approx(9.8 * 0.0025**2, rel=1e-3)
 
 
-def initial_frames(name: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """The hard case's first two MPM frames ``[N, 2, 2]`` and its particle types."""
-    case = next(c for c in CASES if c.name == name)
-    preset = get_preset("small")
-    truth, types = ground_truth(replace(case, frames_factor=3 / preset.num_frames), preset)
-    return torch.from_numpy(truth[:2]).transpose(0, 1).contiguous(), torch.from_numpy(types)
-
-
 def test_shipped_weights_keep_a_pool_at_rest_only_with_the_hold():
-    """Issue 11's target: water at rest drifts under 0.5 cm per 100 frames (the MPM: 0.03)."""
-    initial, types = initial_frames("pool_rest")
+    """Issue 11's target: water at rest drifts under 0.5 cm per 100 frames (the MPM: 0.03); the rest gate
+    that ``gnsx.pretrained`` puts a checkpoint through before shipping it."""
     simulator = load_simulator(SHIPPED)
-    water = (types != KINEMATIC_PARTICLE_ID).numpy()
-    drifts = {}
-    for held in (True, False):
-        positions = rollout(simulator, initial, types, 200, rules=Rules(hold_rest=held)).double().numpy()
-        assert np.isfinite(positions).all()
-        drifts[held] = 100 * drift(positions, water)  # cm per 100 frames
-    assert drifts[True] < 0.5
-    assert drifts[False] > 1.0  # the hold, not the weights, keeps it: without it the pool sloshes
+    drifts = {held: rest_drift(simulator, rules=Rules(hold_rest=held)) for held in (True, False)}
+    assert drifts[True] < REST_DRIFT_TARGET_CM
+    assert 1.0 < drifts[False] < math.inf  # the hold, not the weights, keeps it: without it the pool sloshes
 
 
 def test_a_dam_placed_at_rest_still_breaks():
     """A block at rest in the corner (the MPM: 2.2 m/s over 250 frames): without test 3 the hold froze it
     (0.06 m/s); with it the dam breaks as it does without the hold."""
-    initial, types = initial_frames("on_walls")
     simulator = load_simulator(SHIPPED)
+    initial, types = case_start("on_walls", simulator.input_frames)
     water = (types != KINEMATIC_PARTICLE_ID).numpy()
     speed = {}
     for held in (True, False):

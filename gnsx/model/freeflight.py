@@ -14,22 +14,31 @@ graph that joins particles closer than ``reach``. A cluster is *free* when
 
 1. every member's velocity lies within ``tolerance`` of the cluster's mean velocity (one body: no velocity
    differences, so no viscous stress, and no deformation since the last frame), and
-2. no member lies within ``reach`` of a wall or of a static particle that it is moving towards (nothing
-   outside it pushes: the MPM's walls and ramps only stop motion into them). "Moving" is the velocity after
-   this step's gravity, ``v + g``, so water resting on the floor or on a ramp is touching it.
+2. no member is about to touch a wall or a static particle it is moving towards: its distance to that
+   obstacle, less what it closes in ``lookahead`` frames, is at least ``clearance`` (nothing outside it
+   pushes: the MPM's walls and ramps only stop motion into them). "Moving" is the velocity after this
+   step's gravity, ``v + g``, so water resting on the floor or on a ramp is touching it.
 
 Members of a free cluster take the exact free-fall step ``p + v + g`` instead of the model's; every other
-particle keeps the model's prediction. The model takes over as soon as a body comes within ``reach`` of
-something or its particles' velocities part. ``reach`` is two connectivity radii: the MPM's particles feel a
-wall from 1.5 grid cells, a ramp from 2.5 and each other from 3 (its quadratic stencil reaches 1.5 cells, a
-ramp's collider nodes 1 cell from the segment), so 1.3, 2.2 and 2.6 radii on the small preset; the model
-itself sees only one radius. On the 8 validation trajectories (README, Decisions) one, two and three radii
-could not be told apart over the whole rollout, and one and two cut the error of the first 10 frames by three
-orders of magnitude. A single particle far from everything is a cluster of its own and falls at g, as the
-pairwise decoder already makes it. The radii are the data's (:attr:`LearnedSimulator.rules_radius`), not
-the model's: the MPM's reach does not grow with the model's graph. (When it did, a model with radius 0.05
-instead of 0.035 had a reach of 0.1, fewer fresh blocks counted as free, and its MSE over the first 10
-frames was ~250x worse; README, Decisions.)
+particle keeps the model's prediction. The model takes over as soon as a body nears a wall, a ramp or other
+water, or its particles' velocities part. ``reach``, the radius that joins water into one cluster, is two
+connectivity radii: the MPM's particles feel each other from 3 grid cells (2.6 radii on the small preset; the
+model itself sees only one radius). The clearance to walls and ramps is its own length, 1.3 radii with one
+frame of approach looked ahead. Over 150 training trajectories (``scripts/free_flight_contact.py``) the
+truth's isolated rigid clusters heading for a ramp still fell at g with a clearance (so measured) of 1.28
+radii or more, and the ones pushed in the next step had 0.68-0.75; walls push only at contact (clearance 0).
+On the 32 tuning trajectories (README, Decisions) clearances of 1-1.5 radii gave MSE over the first 10 and 50
+frames within each other's standard errors; 0.5 radii for walls gave the highest mean over 50 frames of those
+tried (1.45e-4 against 1.32-1.36e-4), as if the model predicts an impact better once it has seen the wall
+coming; 1.3 was kept for both. Until 2026-12-02 the clearance was the cluster's 2 radii with no look-ahead,
+which handed falling blocks to the model up to ~4 frames before the truth's contact, and the model shuffled
+their jittered lattices: the new clearance cut MSE over the first 10 frames to 0.13x and over 50 to 0.47x on
+the 32 tuning trajectories, and left the whole rollout alone (0.99x [0.94, 1.04]; geometric means of the per-
+trajectory ratios). A single particle far from everything is a cluster of its own and falls at g, as the
+pairwise decoder already makes it. The radii are the data's (:attr:`LearnedSimulator.rules_radius`), not the
+model's: the MPM's reach does not grow with the model's graph. (When it did, a model with radius 0.05 instead
+of 0.035 had a reach of 0.1, fewer fresh blocks counted as free, and its MSE over the first 10 frames was
+~250x worse; README, Decisions.)
 
 Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step
 (``scripts/free_flight_cost.py``: median frames 1-18% slower at 400-2,300 particles, within the spread in two
@@ -52,8 +61,12 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 #: Velocity tolerance, as a fraction of the length of the data's velocity std (per frame): the truth's free
 #: blocks move as one to float precision; a model's rollout that has started shuffling does not.
 TOLERANCE = 0.01
-#: Reach (cluster radius and clearance to walls and static particles), in connectivity radii.
+#: Reach (water closer than this is one cluster), in connectivity radii.
 REACH = 2.0
+#: Clearance to walls and static particles, in connectivity radii (module docstring: measured on the truth).
+CLEARANCE = 1.3
+#: Frames of approach to a wall or a static particle looked ahead when checking the clearance.
+LOOKAHEAD = 1.0
 
 
 @dataclass(frozen=True)
@@ -63,22 +76,32 @@ class FreeFlight:
     Attributes:
         gravity: ``[D]`` acceleration per frame^2 (data units), e.g. ``(0, -9.8 dt^2)``.
         bounds: ``[D, 2]`` walls ``[lower, upper]`` per axis.
-        reach: particles closer than this are one cluster; a cluster closer than this to a wall or a static
-            particle is not free (data units).
+        reach: particles closer than this are one cluster (data units).
         tolerance: largest velocity difference from the cluster's mean (data units per frame).
+        clearance: a member heading for a wall or a static particle closer than this (after ``lookahead``
+            frames of approach) makes its cluster not free (data units).
+        lookahead: frames of approach subtracted from the distance to an obstacle.
     """
 
     gravity: Tensor
     bounds: Tensor
     reach: float
     tolerance: float
+    clearance: float
+    lookahead: float = LOOKAHEAD
 
     @classmethod
     def for_simulator(
-        cls, simulator, tolerance: float = TOLERANCE, reach: float = REACH
+        cls,
+        simulator,
+        tolerance: float = TOLERANCE,
+        reach: float = REACH,
+        clearance: float = CLEARANCE,
+        lookahead: float = LOOKAHEAD,
     ) -> FreeFlight | None:
-        """Thresholds from the model's data: ``tolerance * |vel_std|``, ``reach`` connectivity radii, and the
-        gravity its pairwise decoder adds. None for a node-decoder model (it has no gravity of its own)."""
+        """Thresholds from the model's data: ``tolerance * |vel_std|``, ``reach`` and ``clearance``
+        connectivity radii, and the gravity its pairwise decoder adds. None for a node-decoder model (it has
+        no gravity of its own)."""
         free_fall = getattr(simulator, "free_fall", None)
         if free_fall is None:
             return None
@@ -87,6 +110,8 @@ class FreeFlight:
             bounds=simulator.bounds.detach().cpu(),
             reach=reach * float(simulator.rules_radius),
             tolerance=tolerance * float(simulator.vel_std.norm()),
+            clearance=clearance * float(simulator.rules_radius),
+            lookahead=float(lookahead),
         )
 
     def free_particles(self, window: Tensor, particle_type: Tensor) -> Tensor:
@@ -111,16 +136,21 @@ class FreeFlight:
         mean = np.stack([np.bincount(label, velocity[water, d], count) for d in range(points.shape[1])], 1)
         mean /= size[:, None]
         spread = np.linalg.norm(velocity[water] - mean[label], axis=1)
-        # Touching: within reach of a wall or a static particle, and moving towards it (after gravity).
+        # Touching: moving towards a wall or a static particle (after gravity) and within the clearance of it
+        # once this step's approach (``lookahead`` frames of it) is taken off the distance.
         heading = velocity[water] + self.gravity.double().numpy()
+        ahead = self.lookahead * np.abs(heading)
         bounds = self.bounds.double().numpy()
-        near_lower = (points - bounds[:, 0] < self.reach) & (heading < 0)
-        near_upper = (bounds[:, 1] - points < self.reach) & (heading > 0)
+        near_lower = (points - bounds[:, 0] - ahead < self.clearance) & (heading < 0)
+        near_upper = (bounds[:, 1] - points - ahead < self.clearance) & (heading > 0)
         touching = (near_lower | near_upper).any(axis=1)
         if static.any():
-            near = tree.sparse_distance_matrix(cKDTree(current[static]), self.reach, output_type="ndarray")
-            i, j = near["i"], near["j"]
-            towards = np.einsum("kd,kd->k", heading[i], current[static][j] - points[i]) > 0
+            look = self.clearance + self.lookahead * float(np.linalg.norm(heading, axis=1).max())
+            near = tree.sparse_distance_matrix(cKDTree(current[static]), look, output_type="ndarray")
+            i, j, distance = near["i"], near["j"], near["v"]
+            towards_unit = (current[static][j] - points[i]) / np.maximum(distance, 1e-300)[:, None]
+            closing = np.einsum("kd,kd->k", heading[i], towards_unit)  # approach per frame
+            towards = (closing > 0) & (distance - self.lookahead * closing < self.clearance)
             touching[i[towards]] = True
         # A cluster is free when no member breaks ranks or touches anything.
         broken = np.bincount(label, (spread > self.tolerance) | touching, count) > 0

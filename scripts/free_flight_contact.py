@@ -1,0 +1,113 @@
+"""How close the MPM truth's free bodies of water come to a wall or a ramp while still falling at g.
+
+    .venv/bin/python scripts/free_flight_contact.py data/small_400 train 150
+
+The measurement behind :data:`gnsx.model.freeflight.CLEARANCE`. For every frame of the first ``frames`` of
+each trajectory, the water is split into clusters as :class:`gnsx.model.freeflight.FreeFlight` does
+(particles closer than ``REACH`` connectivity radii), and a cluster is kept when it moves as one body
+(velocities within the rule's tolerance of their mean) and lies at least 3 radii from all other water (the
+MPM's particles feel each other from ~2.6). For each kept cluster, its members heading for a wall or a
+static particle (velocity after gravity) give a distance to that obstacle less one frame of approach, the
+rule's test; the smallest over the members is the cluster's clearance. Printed, in connectivity radii, for
+the clusters whose next step is still free fall (every member's acceleration within 1e-6 of g per frame^2,
+a few float32 round-offs) and for those whose next step is not: the first set's low percentiles are how
+close the truth lets a body come before anything pushes it.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.data.store import load_metadata, open_split
+from gnsx.model.freeflight import REACH, TOLERANCE
+from gnsx.scoring import gravity_per_frame
+
+#: Largest deviation from g (data units per frame^2) that still counts as free fall.
+FREE_FALL = 1e-6
+#: Other water at least this far (connectivity radii) from a kept cluster.
+ISOLATION = 3.0
+
+
+def cluster_clearances(position: np.ndarray, static: np.ndarray, bounds, radius, gravity, tolerance, frames):
+    """``[(clearance, falls_at_g, obstacle)]`` for the isolated rigid clusters of one trajectory.
+
+    Args:
+        position: ``[T, N, 2]`` float64 truth; static: ``[N]`` bool; bounds: ``[2, 2]``; radius, tolerance:
+            data units; gravity: ``[2]`` per frame^2; frames: frames examined from frame 1.
+    """
+    rows = []
+    walls = np.asarray(bounds, dtype=np.float64)
+    ramps = cKDTree(position[0][static]) if static.any() else None
+    for f in range(1, min(len(position) - 1, frames)):
+        current = position[f][~static]
+        velocity = current - position[f - 1][~static]
+        acceleration = position[f + 1][~static] - 2 * current + position[f - 1][~static]
+        tree = cKDTree(current)
+        pairs = tree.query_pairs(REACH * radius, output_type="ndarray")
+        n = len(current)
+        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+        count, label = connected_components(graph, directed=True, connection="weak")
+        size = np.bincount(label, minlength=count)
+        mean = np.stack([np.bincount(label, velocity[:, d], count) for d in range(2)], 1) / size[:, None]
+        rigid = np.bincount(label, np.linalg.norm(velocity - mean[label], axis=1) > tolerance, count) == 0
+        heading = velocity + gravity
+        wall = np.full(n, np.inf)
+        for d in range(2):
+            lower = current[:, d] - walls[d, 0] + heading[:, d]  # heading < 0: less one frame of approach
+            upper = walls[d, 1] - current[:, d] - heading[:, d]
+            wall = np.where(heading[:, d] < 0, np.minimum(wall, lower), wall)
+            wall = np.where(heading[:, d] > 0, np.minimum(wall, upper), wall)
+        ramp = np.full(n, np.inf)
+        if ramps is not None:
+            near = tree.sparse_distance_matrix(ramps, 0.2, output_type="ndarray")
+            i, j, distance = near["i"], near["j"], near["v"]
+            unit = (ramps.data[j] - current[i]) / np.maximum(distance, 1e-300)[:, None]
+            closing = np.einsum("kd,kd->k", heading[i], unit)
+            towards = closing > 0
+            np.minimum.at(ramp, i[towards], (distance - closing)[towards])
+        free = np.linalg.norm(acceleration - gravity, axis=1) <= FREE_FALL
+        for c in np.flatnonzero(rigid):
+            members = label == c
+            others = current[~members]
+            if len(others) and cKDTree(others).query(current[members])[0].min() < ISOLATION * radius:
+                continue
+            for name, distance in (("wall", wall), ("ramp", ramp)):
+                closest = distance[members].min()
+                if np.isfinite(closest):
+                    rows.append((closest / radius, bool(free[members].all()), name))
+    return rows
+
+
+def main(root: str, split: str, trajectories: int, frames: int = 120) -> None:
+    metadata = load_metadata(root)
+    data = open_split(root, split, metadata)
+    radius = float(metadata.default_connectivity_radius)
+    tolerance = TOLERANCE * float(np.linalg.norm(np.asarray(metadata.vel_std, dtype=np.float64)))
+    gravity = gravity_per_frame(metadata).double().numpy()
+    rows = []
+    for index in range(min(trajectories, len(data))):
+        trajectory = data[index]
+        position = trajectory.position.astype(np.float64)
+        static = trajectory.particle_type == KINEMATIC_PARTICLE_ID
+        rows += cluster_clearances(position, static, metadata.bounds, radius, gravity, tolerance, frames)
+    for obstacle in ("wall", "ramp"):
+        for free in (True, False):
+            values = np.array([r[0] for r in rows if r[2] == obstacle and r[1] == free])
+            if len(values) == 0:
+                continue
+            lo, p1, p5 = values.min(), *np.percentile(values, [1, 5])
+            state = "still falling at g" if free else "pushed next step  "
+            print(
+                f"{obstacle}: {state} {len(values):5d} cluster-frames, clearance min {lo:.2f} "
+                f"1st percentile {p1:.2f} 5th {p5:.2f} radii"
+            )
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], sys.argv[2], int(sys.argv[3]))
