@@ -4,14 +4,14 @@
 
 The measurement behind :data:`gnsx.model.freeflight.CLEARANCE`. For every frame of the first ``frames`` of
 each trajectory, the water is split into clusters as :class:`gnsx.model.freeflight.FreeFlight` does
-(particles closer than ``REACH`` connectivity radii), and a cluster is kept when it moves as one body
-(velocities within the rule's tolerance of their mean) and lies at least 3 radii from all other water (the
-MPM's particles feel each other from ~2.6). For each kept cluster, its members heading for a wall or a
-static particle (velocity after gravity) give a distance to that obstacle less one frame of approach, the
-rule's test; the smallest over the members is the cluster's clearance. Printed, in connectivity radii, for
-the clusters whose next step is still free fall (every member's acceleration within 1e-6 of g per frame^2,
-a few float32 round-offs) and for those whose next step is not: the first set's low percentiles are how
-close the truth lets a body come before anything pushes it.
+(:func:`gnsx.model.freeflight.rigid_clusters`, particles closer than ``REACH`` connectivity radii), and a
+cluster is kept when it moves as one body (velocities within the rule's tolerance of their mean) and lies at
+least 3 radii from all other water (the MPM's particles feel each other from ~2.6). For each kept cluster, its
+members heading for a wall or a static particle (velocity after gravity) give a distance to that obstacle less
+one frame of approach, the rule's test; the smallest over the members is the cluster's clearance. Printed, in
+connectivity radii, for the clusters whose next step is still free fall (every member's acceleration within
+1e-6 of g per frame^2, a few float32 round-offs) and for those whose next step is not: the first set's low
+percentiles are how close the truth lets a body come before anything pushes it.
 """
 
 from __future__ import annotations
@@ -19,13 +19,11 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.store import load_metadata, open_split
-from gnsx.model.freeflight import REACH, TOLERANCE
+from gnsx.model.freeflight import REACH, TOLERANCE, rigid_clusters
 from gnsx.scoring import gravity_per_frame
 
 #: Largest deviation from g (data units per frame^2) that still counts as free fall.
@@ -49,13 +47,8 @@ def cluster_clearances(position: np.ndarray, static: np.ndarray, bounds, radius,
         velocity = current - position[f - 1][~static]
         acceleration = position[f + 1][~static] - 2 * current + position[f - 1][~static]
         tree = cKDTree(current)
-        pairs = tree.query_pairs(REACH * radius, output_type="ndarray")
+        label, broken = rigid_clusters(tree, velocity, REACH * radius, tolerance)
         n = len(current)
-        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-        count, label = connected_components(graph, directed=True, connection="weak")
-        size = np.bincount(label, minlength=count)
-        mean = np.stack([np.bincount(label, velocity[:, d], count) for d in range(2)], 1) / size[:, None]
-        rigid = np.bincount(label, np.linalg.norm(velocity - mean[label], axis=1) > tolerance, count) == 0
         heading = velocity + gravity
         wall = np.full(n, np.inf)
         for d in range(2):
@@ -72,7 +65,7 @@ def cluster_clearances(position: np.ndarray, static: np.ndarray, bounds, radius,
             towards = closing > 0
             np.minimum.at(ramp, i[towards], (distance - closing)[towards])
         free = np.linalg.norm(acceleration - gravity, axis=1) <= FREE_FALL
-        for c in np.flatnonzero(rigid):
+        for c in np.flatnonzero(~broken):
             members = label == c
             others = current[~members]
             if len(others) and cKDTree(others).query(current[members])[0].min() < ISOLATION * radius:

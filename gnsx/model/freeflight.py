@@ -26,19 +26,19 @@ connectivity radii: the MPM's particles feel each other from 3 grid cells (2.6 r
 model itself sees only one radius). The clearance to walls and ramps is its own length, 1.3 radii with one
 frame of approach looked ahead. Over 150 training trajectories (``scripts/free_flight_contact.py``) the
 truth's isolated rigid clusters heading for a ramp still fell at g with a clearance (so measured) of 1.28
-radii or more, and the ones pushed in the next step had 0.68-0.75; walls push only at contact (clearance 0).
-On the 32 tuning trajectories (README, Decisions) clearances of 1-1.5 radii gave MSE over the first 10 and 50
-frames within each other's standard errors; 0.5 radii for walls gave the highest mean over 50 frames of those
-tried (1.45e-4 against 1.32-1.36e-4), as if the model predicts an impact better once it has seen the wall
-coming; 1.3 was kept for both. Until 2026-12-02 the clearance was the cluster's 2 radii with no look-ahead,
-which handed falling blocks to the model up to ~4 frames before the truth's contact, and the model shuffled
-their jittered lattices: the new clearance cut MSE over the first 10 frames to 0.13x and over 50 to 0.47x on
-the 32 tuning trajectories, and left the whole rollout alone (0.99x [0.94, 1.04]; geometric means of the per-
-trajectory ratios). A single particle far from everything is a cluster of its own and falls at g, as the
-pairwise decoder already makes it. The radii are the data's (:attr:`LearnedSimulator.rules_radius`), not the
-model's: the MPM's reach does not grow with the model's graph. (When it did, a model with radius 0.05 instead
-of 0.035 had a reach of 0.1, fewer fresh blocks counted as free, and its MSE over the first 10 frames was
-~250x worse; README, Decisions.)
+radii or more, while the ones pushed in the next step came as close as 0.68 (5th percentile 0.75); walls push
+only at contact (clearance 0). On the 32 tuning trajectories (README, Decisions) clearances of 1-1.5 radii
+gave MSE over the first 10 and 50 frames within each other's standard errors; 0.5 radii for walls gave the
+highest mean over 50 frames of those tried (1.45e-4 against 1.32-1.37e-4), as if the model predicts an impact
+better once it has seen the wall coming; 1.3 was kept for both. Until 2026-12-02 the clearance was the
+cluster's 2 radii with no look-ahead, which handed falling blocks to the model up to ~4 frames before the
+truth's contact, and the model shuffled their jittered lattices: the new clearance cut MSE over the first 10
+frames to 0.13x and over 50 to 0.47x on the 32 tuning trajectories, and left the whole rollout alone (0.99x
+[0.94, 1.04]; geometric means of the per-trajectory ratios). A single particle far from everything is a
+cluster of its own and falls at g, as the pairwise decoder already makes it. The radii are the data's
+(:attr:`LearnedSimulator.rules_radius`), not the model's: the MPM's reach does not grow with the model's
+graph. (When it did, a model with radius 0.05 instead of 0.035 had a reach of 0.1, fewer fresh blocks counted
+as free, and its MSE over the first 10 frames was ~250x worse; README, Decisions.)
 
 Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step
 (``scripts/free_flight_cost.py``: median frames 1-18% slower at 400-2,300 particles, within the spread in two
@@ -67,6 +67,31 @@ REACH = 2.0
 CLEARANCE = 1.3
 #: Frames of approach to a wall or a static particle looked ahead when checking the clearance.
 LOOKAHEAD = 1.0
+
+
+def rigid_clusters(tree: cKDTree, velocity: np.ndarray, reach: float, tolerance: float):
+    """Clusters of water and which of them break ranks.
+
+    Args:
+        tree: KD-tree over the water's positions ``[M, D]`` (data units).
+        velocity: ``[M, D]`` their velocities (data units per frame).
+        reach: particles closer than this are one cluster; tolerance: largest velocity difference from the
+            cluster's mean velocity of a body that moves as one.
+    Returns:
+        ``label`` ``[M]`` each particle's cluster, and ``broken`` ``[C]`` bool: a member of the cluster moves
+        more than ``tolerance`` off its mean velocity.
+    """
+    n = len(velocity)
+    pairs = tree.query_pairs(reach, output_type="ndarray")
+    # Weak components of the one-way pair graph are the undirected ones (measured 1.9 against 2.8 ms for
+    # directed=False, which first adds the transposed graph, at 2,300 particles).
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    count, label = connected_components(graph, directed=True, connection="weak")
+    size = np.bincount(label, minlength=count)
+    mean = np.stack([np.bincount(label, velocity[:, d], count) for d in range(velocity.shape[1])], 1)
+    mean /= size[:, None]
+    spread = np.linalg.norm(velocity - mean[label], axis=1)
+    return label, np.bincount(label, spread > tolerance, count) > 0
 
 
 @dataclass(frozen=True)
@@ -125,17 +150,7 @@ class FreeFlight:
             return torch.from_numpy(free).to(window.device)
         points = current[water]
         tree = cKDTree(points)
-        pairs = tree.query_pairs(self.reach, output_type="ndarray")
-        n = len(water)
-        # Weak components of the one-way pair graph are the undirected ones (measured 1.9 against 2.8 ms
-        # for directed=False, which first adds the transposed graph, at 2,300 particles).
-        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-        count, label = connected_components(graph, directed=True, connection="weak")
-        # Per cluster: the mean velocity, then each member's distance from it.
-        size = np.bincount(label, minlength=count)
-        mean = np.stack([np.bincount(label, velocity[water, d], count) for d in range(points.shape[1])], 1)
-        mean /= size[:, None]
-        spread = np.linalg.norm(velocity[water] - mean[label], axis=1)
+        label, broken = rigid_clusters(tree, velocity[water], self.reach, self.tolerance)
         # Touching: moving towards a wall or a static particle (after gravity) and within the clearance of it
         # once this step's approach (``lookahead`` frames of it) is taken off the distance.
         heading = velocity[water] + self.gravity.double().numpy()
@@ -153,7 +168,7 @@ class FreeFlight:
             towards = (closing > 0) & (distance - self.lookahead * closing < self.clearance)
             touching[i[towards]] = True
         # A cluster is free when no member breaks ranks or touches anything.
-        broken = np.bincount(label, (spread > self.tolerance) | touching, count) > 0
+        broken |= np.bincount(label, touching, len(broken)) > 0
         free[water] = ~broken[label]
         return torch.from_numpy(free).to(window.device)
 
