@@ -77,6 +77,9 @@ def check_train_config(cfg: DictConfig) -> None:
     noise = check_number(_get(cfg, "train.noise_std"), "train.noise_std", allow_none=True)
     if noise is not None and noise < 0:
         raise ConfigError(f"train.noise_std={noise}", "must be >= 0 (or null: the model's)")
+    mirror = _get(cfg, "train.mirror", False)
+    if not isinstance(mirror, bool):
+        raise ConfigError(f"train.mirror={mirror}", "must be true or false")
     correction = check_number(_get(cfg, "train.noise_correction", 0.0), "train.noise_correction")
     if not 0.0 <= correction <= 1.0:
         raise ConfigError(f"train.noise_correction={correction}", "must be in [0, 1]")

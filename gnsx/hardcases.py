@@ -34,6 +34,7 @@ Precision: the ``dam_break`` case is also rolled out in float64 and the float32 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import sys
@@ -171,7 +172,9 @@ def rest_drift(
     it before shipping a checkpoint. NaN positions give ``inf``."""
     initial, types = case_start("pool_rest", simulator.input_frames)
     initial = initial.to(simulator.acc_std.dtype)
-    positions = rollout(simulator.cpu().eval(), initial, types, frames, rules=rules).double().numpy()
+    if simulator.acc_std.device.type != "cpu":  # rollouts run on the CPU; the caller's model stays put
+        simulator = copy.deepcopy(simulator).cpu()
+    positions = rollout(simulator, initial, types, frames, rules=rules).double().numpy()
     if not np.isfinite(positions).all():
         return math.inf
     return 100 * drift(positions, (types != KINEMATIC_PARTICLE_ID).numpy())

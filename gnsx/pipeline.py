@@ -138,6 +138,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         noise_decay=float(train.noise_decay),
         noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
         pushforward_steps=int(OmegaConf.select(train, "pushforward_steps", default=0)),
+        mirror=bool(OmegaConf.select(train, "mirror", default=False)),
         lr_init=float(train.lr_init),
         lr_final=float(train.lr_final),
         lr_decay_start=int(train.lr_decay_start),

@@ -191,6 +191,8 @@ def export(
     ``results.json``.
     Any checkpoint other than the last is evaluated on the test split here, so ``results.json`` always
     describes the shipped weights."""
+    if not run_dir.is_dir():  # before the rest gate's minutes of rollouts
+        raise DataError(str(run_dir), "no such run directory")
     selected = None
     ranked: list[tuple[Path, float, str]] = []
     if select_best_val:
@@ -225,8 +227,6 @@ def export(
                 f" among the checkpoints whose pool at rest drifts under {target} cm per 100 frames"
             )
             selected["rest_gate"] = gate
-    if not run_dir.is_dir():
-        raise DataError(str(run_dir), "no such run directory")
     last = run_dir / "checkpoints" / "last.ckpt"
     checkpoint = checkpoint or last
     if not checkpoint.is_file():

@@ -14,6 +14,7 @@ import torch
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.metrics import position_mse
+from gnsx.model.mirror import random_mirror
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.numerics import SkippedSteps, drop_gradients, finite_gradients
@@ -62,6 +63,8 @@ class GNSSystem(L.LightningModule):
             target is the true next position; :meth:`LearnedSimulator.noisy_training_pair`).
         pushforward_steps: model steps without gradient before the loss step (the pushforward trick; the
             datamodule must give samples that many frames longer); 0: DeepMind's single step.
+        mirror: train on each sample or its left-right reflection, with probability 1/2
+            (:mod:`gnsx.model.mirror`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
@@ -88,6 +91,7 @@ class GNSSystem(L.LightningModule):
         noise_decay: float = 0.4,
         noise_correction: float = 0.0,
         pushforward_steps: int = 0,
+        mirror: bool = False,
         lr_init: float = 1.0e-4,
         lr_final: float = 1.0e-6,
         lr_decay_start: int = 1_000_000,
@@ -162,9 +166,14 @@ class GNSSystem(L.LightningModule):
         self._skipping = False
         std = self.current_noise_std()
         correction = self.hparams.get("noise_correction", 0.0)  # absent from checkpoints before 2026-12-01
+        sequence, next_position = batch.position_sequence, batch.next_position
+        if self.hparams.get("mirror", False):  # absent from checkpoints before 2026-12-02
+            sequence, next_position = random_mirror(
+                sequence, next_position, self.simulator.bounds, batch.batch
+            )
         predicted, target = self.simulator.noisy_training_pair(
-            batch.position_sequence,
-            batch.next_position,
+            sequence,
+            next_position,
             batch.particle_type,
             std,
             batch.batch,

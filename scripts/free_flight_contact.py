@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.store import load_metadata, open_split
-from gnsx.model.freeflight import REACH, TOLERANCE, rigid_clusters
+from gnsx.model.freeflight import LOOKAHEAD, REACH, TOLERANCE, obstacle_gaps, rigid_clusters
 from gnsx.scoring import gravity_per_frame
 
 #: Largest deviation from g (data units per frame^2) that still counts as free fall.
@@ -48,22 +48,8 @@ def cluster_clearances(position: np.ndarray, static: np.ndarray, bounds, radius,
         acceleration = position[f + 1][~static] - 2 * current + position[f - 1][~static]
         tree = cKDTree(current)
         label, broken = rigid_clusters(tree, velocity, REACH * radius, tolerance)
-        n = len(current)
-        heading = velocity + gravity
-        wall = np.full(n, np.inf)
-        for d in range(2):
-            lower = current[:, d] - walls[d, 0] + heading[:, d]  # heading < 0: less one frame of approach
-            upper = walls[d, 1] - current[:, d] - heading[:, d]
-            wall = np.where(heading[:, d] < 0, np.minimum(wall, lower), wall)
-            wall = np.where(heading[:, d] > 0, np.minimum(wall, upper), wall)
-        ramp = np.full(n, np.inf)
-        if ramps is not None:
-            near = tree.sparse_distance_matrix(ramps, 0.2, output_type="ndarray")
-            i, j, distance = near["i"], near["j"], near["v"]
-            unit = (ramps.data[j] - current[i]) / np.maximum(distance, 1e-300)[:, None]
-            closing = np.einsum("kd,kd->k", heading[i], unit)
-            towards = closing > 0
-            np.minimum.at(ramp, i[towards], (distance - closing)[towards])
+        # One frame of approach taken off, as the rule does (``LOOKAHEAD``).
+        wall, ramp = obstacle_gaps(tree, velocity + gravity, walls, ramps, 0.2, LOOKAHEAD)
         free = np.linalg.norm(acceleration - gravity, axis=1) <= FREE_FALL
         for c in np.flatnonzero(~broken):
             members = label == c

@@ -351,6 +351,11 @@ def _train(overrides: list[str], tmp_path, capsys, case: str, dataset: Path | No
             "error: train.pushforward_steps=-1: must be >= 0",
         ),
         (
+            "train: mirror that is not true or false",
+            "train.mirror=sometimes",
+            "error: train.mirror=sometimes: must be true or false",
+        ),
+        (
             "train: a rollout rule that is not true or false",
             "evaluate.rules.hold_rest=maybe",
             "error: evaluate.rules.hold_rest=maybe: must be true or false",

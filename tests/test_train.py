@@ -164,6 +164,17 @@ def test_pushforward_training_reads_longer_windows_and_trains(tmp_path, tiny_dat
     assert system.hparams.pushforward_steps == 1
 
 
+def test_mirror_training_records_the_switch(tmp_path, tiny_dataset):
+    run = _run_train(
+        tmp_path, tiny_dataset, "mirror",
+        ["logger=csv", "train.max_steps=3", "train.max_time=null", "train.mirror=true",
+         "evaluate.enabled=false"],
+    )  # fmt: skip
+    assert json.loads((run / "results.json").read_text())["global_step"] == 3
+    system = GNSSystem.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu")
+    assert system.hparams.mirror is True
+
+
 def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
     run = _run_train(
         tmp_path,

@@ -94,6 +94,47 @@ def rigid_clusters(tree: cKDTree, velocity: np.ndarray, reach: float, tolerance:
     return label, np.bincount(label, spread > tolerance, count) > 0
 
 
+def obstacle_gaps(
+    tree: cKDTree,
+    heading: np.ndarray,
+    bounds: np.ndarray,
+    statics: cKDTree | None,
+    search: float,
+    lookahead: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How close each particle is to the walls and to the static particles it is heading for.
+
+    Args:
+        tree: KD-tree over the particles' positions ``[M, D]`` (data units).
+        heading: ``[M, D]`` their velocity after gravity (per frame).
+        bounds: ``[D, 2]`` walls ``[lower, upper]`` per axis.
+        statics: KD-tree over the static particles, or ``None``.
+        search: static particles farther than this are not looked at (data units).
+        lookahead: frames of approach taken off each distance.
+
+    Returns:
+        ``wall`` and ``ramp``, both ``[M]``: the smallest distance to a wall (a static particle) that the
+        particle is moving towards, less ``lookahead`` frames of its approach to it; ``inf`` when it is moving
+        towards none (within ``search``).
+    """
+    points = tree.data
+    wall = np.full(len(points), np.inf)
+    for d in range(points.shape[1]):
+        lower = points[:, d] - bounds[d, 0] + lookahead * heading[:, d]  # heading < 0: approach taken off
+        upper = bounds[d, 1] - points[:, d] - lookahead * heading[:, d]
+        wall = np.where(heading[:, d] < 0, np.minimum(wall, lower), wall)
+        wall = np.where(heading[:, d] > 0, np.minimum(wall, upper), wall)
+    ramp = np.full(len(points), np.inf)
+    if statics is not None:
+        near = tree.sparse_distance_matrix(statics, search, output_type="ndarray")
+        i, j, distance = near["i"], near["j"], near["v"]
+        unit = (statics.data[j] - points[i]) / np.maximum(distance, 1e-300)[:, None]
+        closing = np.einsum("kd,kd->k", heading[i], unit)  # approach per frame
+        towards = closing > 0
+        np.minimum.at(ramp, i[towards], (distance - lookahead * closing)[towards])
+    return wall, ramp
+
+
 @dataclass(frozen=True)
 class FreeFlight:
     """Free-flying rigid clusters of water fall at exactly ``gravity``.
@@ -154,19 +195,12 @@ class FreeFlight:
         # Touching: moving towards a wall or a static particle (after gravity) and within the clearance of it
         # once this step's approach (``lookahead`` frames of it) is taken off the distance.
         heading = velocity[water] + self.gravity.double().numpy()
-        ahead = self.lookahead * np.abs(heading)
-        bounds = self.bounds.double().numpy()
-        near_lower = (points - bounds[:, 0] - ahead < self.clearance) & (heading < 0)
-        near_upper = (bounds[:, 1] - points - ahead < self.clearance) & (heading > 0)
-        touching = (near_lower | near_upper).any(axis=1)
-        if static.any():
-            look = self.clearance + self.lookahead * float(np.linalg.norm(heading, axis=1).max())
-            near = tree.sparse_distance_matrix(cKDTree(current[static]), look, output_type="ndarray")
-            i, j, distance = near["i"], near["j"], near["v"]
-            towards_unit = (current[static][j] - points[i]) / np.maximum(distance, 1e-300)[:, None]
-            closing = np.einsum("kd,kd->k", heading[i], towards_unit)  # approach per frame
-            towards = (closing > 0) & (distance - self.lookahead * closing < self.clearance)
-            touching[i[towards]] = True
+        search = self.clearance + self.lookahead * float(np.linalg.norm(heading, axis=1).max())
+        statics = cKDTree(current[static]) if static.any() else None
+        wall, ramp = obstacle_gaps(
+            tree, heading, self.bounds.double().numpy(), statics, search, self.lookahead
+        )
+        touching = np.minimum(wall, ramp) < self.clearance
         # A cluster is free when no member breaks ranks or touches anything.
         broken |= np.bincount(label, touching, len(broken)) > 0
         free[water] = ~broken[label]

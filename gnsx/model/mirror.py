@@ -1,0 +1,53 @@
+"""Mirror augmentation: a scene reflected left-right is a scene of the same physics.
+
+WaterRamps' box is symmetric about its vertical centre line and gravity is vertical, so reflecting every
+position of a trajectory, ``x -> x_lo + x_hi - x``, gives another trajectory of the same fluid (the MPM solver
+has no preferred horizontal direction). A graph network's edge features (relative displacements) and wall
+distances are not reflection invariant by construction, so the model can learn a left-right bias that no
+data supports: the 2026-12-02 pretrain's checkpoints let a pool at rest, wall to wall, flow away from the
+right wall at ~1 mm per frame (README, Decisions). Training on each sample or its reflection, with
+probability 1/2, doubles the scenes the model sees and removes the bias from what it is taught.
+
+Only the first (horizontal) axis is reflected: gravity points along the second, as in every DeepMind 2D set.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def reflect_x(positions: Tensor, x_bounds: tuple[float, float], flip: Tensor) -> Tensor:
+    """``positions`` ``[N, ..., D]`` with the first coordinate of the rows where ``flip`` ``[N]`` (bool) is
+    set reflected about the box's centre: ``x -> x_lo + x_hi - x``. Returns a new tensor."""
+    lo, hi = x_bounds
+    mask = flip.reshape(-1, *([1] * (positions.dim() - 2)))  # broadcast over the frame axes
+    reflected = positions.clone()
+    reflected[..., 0] = torch.where(mask, (lo + hi) - positions[..., 0], positions[..., 0])
+    return reflected
+
+
+def random_mirror(
+    position_sequence: Tensor,
+    next_position: Tensor,
+    bounds: Tensor,
+    batch: Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Each graph of a batch left as it is or reflected left-right (:func:`reflect_x`), with probability 1/2.
+
+    Args:
+        position_sequence: ``[N, F, D]`` input positions, oldest first (data units).
+        next_position: ``[N, D]`` the target frame.
+        bounds: ``[D, 2]`` the box (the model's ``bounds`` buffer); row 0 is the reflected axis.
+        batch: ``[N]`` graph id of each particle (``None``: one graph).
+        generator: optional torch generator for reproducible draws.
+
+    Returns:
+        ``(position_sequence, next_position)``, same shapes, every particle of a graph reflected together.
+    """
+    num_graphs = 1 if batch is None else int(batch.max()) + 1
+    flip_graph = torch.rand(num_graphs, generator=generator, device=position_sequence.device) < 0.5
+    flip = flip_graph[batch] if batch is not None else flip_graph.expand(len(next_position))
+    x_bounds = (float(bounds[0, 0]), float(bounds[0, 1]))
+    return reflect_x(position_sequence, x_bounds, flip), reflect_x(next_position, x_bounds, flip)
