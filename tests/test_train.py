@@ -143,7 +143,7 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
     assert resumed["lr_schedulers"][0]["last_epoch"] == 9
 
 
-def test_pushforward_training_reads_longer_windows_and_trains(tmp_path, tiny_dataset):
+def test_pushforward_and_mirror_training_read_longer_windows_and_train(tmp_path, tiny_dataset):
     from gnsx.data.store import SplitReader
     from gnsx.datamodule import FrameDataset
 
@@ -157,22 +157,11 @@ def test_pushforward_training_reads_longer_windows_and_trains(tmp_path, tiny_dat
     run = _run_train(
         tmp_path, tiny_dataset, "pushforward",
         ["logger=csv", "train.max_steps=3", "train.max_time=null", "train.pushforward_steps=1",
-         "evaluate.enabled=false"],
+         "train.mirror=true", "evaluate.enabled=false"],
     )  # fmt: skip
     assert json.loads((run / "results.json").read_text())["global_step"] == 3
     system = GNSSystem.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu")
-    assert system.hparams.pushforward_steps == 1
-
-
-def test_mirror_training_records_the_switch(tmp_path, tiny_dataset):
-    run = _run_train(
-        tmp_path, tiny_dataset, "mirror",
-        ["logger=csv", "train.max_steps=3", "train.max_time=null", "train.mirror=true",
-         "evaluate.enabled=false"],
-    )  # fmt: skip
-    assert json.loads((run / "results.json").read_text())["global_step"] == 3
-    system = GNSSystem.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu")
-    assert system.hparams.mirror is True
+    assert system.hparams.pushforward_steps == 1 and system.hparams.mirror is True
 
 
 def test_wandb_offline_run_is_written_and_finished(tmp_path, tiny_dataset):
