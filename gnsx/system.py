@@ -169,7 +169,7 @@ class GNSSystem(L.LightningModule):
         sequence, next_position = batch.position_sequence, batch.next_position
         if self.hparams.get("mirror", False):  # absent from checkpoints before 2026-12-02
             sequence, next_position = random_mirror(
-                sequence, next_position, self.simulator.bounds, batch.batch
+                sequence, next_position, self.simulator.bounds, batch.batch, num_graphs=batch.num_graphs
             )
         predicted, target = self.simulator.noisy_training_pair(
             sequence,

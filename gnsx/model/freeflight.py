@@ -118,12 +118,9 @@ def obstacle_gaps(
         towards none (within ``search``).
     """
     points = tree.data
-    wall = np.full(len(points), np.inf)
-    for d in range(points.shape[1]):
-        lower = points[:, d] - bounds[d, 0] + lookahead * heading[:, d]  # heading < 0: approach taken off
-        upper = bounds[d, 1] - points[:, d] - lookahead * heading[:, d]
-        wall = np.where(heading[:, d] < 0, np.minimum(wall, lower), wall)
-        wall = np.where(heading[:, d] > 0, np.minimum(wall, upper), wall)
+    lower = points - bounds[:, 0] + lookahead * heading  # heading < 0: its approach taken off
+    upper = bounds[:, 1] - points - lookahead * heading
+    wall = np.where(heading < 0, lower, np.where(heading > 0, upper, np.inf)).min(axis=1)
     ramp = np.full(len(points), np.inf)
     if statics is not None:
         near = tree.sparse_distance_matrix(statics, search, output_type="ndarray")

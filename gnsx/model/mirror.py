@@ -18,9 +18,10 @@ import torch
 from torch import Tensor
 
 
-def reflect_x(positions: Tensor, x_bounds: tuple[float, float], flip: Tensor) -> Tensor:
+def reflect_x(positions: Tensor, x_bounds: tuple[float, float] | Tensor, flip: Tensor) -> Tensor:
     """``positions`` ``[N, ..., D]`` with the first coordinate of the rows where ``flip`` ``[N]`` (bool) is
-    set reflected about the box's centre: ``x -> x_lo + x_hi - x``. Returns a new tensor."""
+    set reflected about the box's centre: ``x -> x_lo + x_hi - x``; ``x_bounds`` ``(x_lo, x_hi)`` as floats or
+    a ``[2]`` tensor (no host sync). Returns a new tensor."""
     lo, hi = x_bounds
     mask = flip.reshape(-1, *([1] * (positions.dim() - 2)))  # broadcast over the frame axes
     reflected = positions.clone()
@@ -34,6 +35,7 @@ def random_mirror(
     bounds: Tensor,
     batch: Tensor | None = None,
     generator: torch.Generator | None = None,
+    num_graphs: int | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Each graph of a batch left as it is or reflected left-right (:func:`reflect_x`), with probability 1/2.
 
@@ -43,12 +45,14 @@ def random_mirror(
         bounds: ``[D, 2]`` the box (the model's ``bounds`` buffer); row 0 is the reflected axis.
         batch: ``[N]`` graph id of each particle (``None``: one graph).
         generator: optional torch generator for reproducible draws.
+        num_graphs: graphs in the batch when known (PyG's ``Batch.num_graphs``); else read from ``batch``.
 
     Returns:
         ``(position_sequence, next_position)``, same shapes, every particle of a graph reflected together.
     """
-    num_graphs = 1 if batch is None else int(batch.max()) + 1
+    if num_graphs is None:
+        num_graphs = 1 if batch is None else int(batch.max()) + 1
     flip_graph = torch.rand(num_graphs, generator=generator, device=position_sequence.device) < 0.5
     flip = flip_graph[batch] if batch is not None else flip_graph.expand(len(next_position))
-    x_bounds = (float(bounds[0, 0]), float(bounds[0, 1]))
+    x_bounds = bounds[0].to(position_sequence.dtype)  # a tensor: no host sync on a GPU's training step
     return reflect_x(position_sequence, x_bounds, flip), reflect_x(next_position, x_bounds, flip)
