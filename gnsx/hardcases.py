@@ -65,6 +65,12 @@ DRIFT_FRAMES = 100
 REST_DRIFT_TARGET_CM = 0.5
 #: Frames of the rest gate's rollout (:func:`rest_drift`): the drift is measured over its last 100.
 REST_GATE_FRAMES = 200
+#: Frames of the dam-break check (:func:`dam_break_speeds`): the MPM's block collapses within them.
+DAM_FRAMES = 60
+#: The rest hold must not stop a dam from breaking: its fastest particle with the hold at least this share of
+#: the speed without it, and at least :data:`DAM_MIN_SPEED` m/s (the MPM's: 2.2 m/s over 250 frames).
+DAM_SPEED_SHARE = 0.7
+DAM_MIN_SPEED = 0.5
 
 
 @dataclass(frozen=True)
@@ -178,6 +184,31 @@ def rest_drift(
     if not np.isfinite(positions).all():
         return math.inf
     return 100 * drift(positions, (types != KINEMATIC_PARTICLE_ID).numpy())
+
+
+@torch.inference_mode()
+def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> tuple[float, float]:
+    """Fastest water particle (m/s) of a block placed at rest in a corner (``on_walls``) over ``frames``
+    frames, with every rule and with every rule but the rest hold: ``(held, free)``. The other half of the
+    rest gate: a hold strong enough to keep any pool still also freezes a dam that should break (README,
+    Decisions: with its acceleration threshold at 1 g every checkpoint passed the pool and froze the dam)."""
+    initial, types = case_start("on_walls", simulator.input_frames)
+    initial = initial.to(simulator.acc_std.dtype)
+    if simulator.acc_std.device.type != "cpu":
+        simulator = copy.deepcopy(simulator).cpu()
+    water = (types != KINEMATIC_PARTICLE_ID).numpy()
+    dt = float(get_preset("small").frame_dt)
+    speeds = []
+    for held in (True, False):
+        positions = rollout(simulator, initial, types, frames, rules=Rules(hold_rest=held)).double().numpy()
+        steps = np.linalg.norm(positions[1:] - positions[:-1], axis=-1)[:, water]
+        speeds.append(float(steps.max()) / dt if np.isfinite(steps).all() else math.inf)
+    return speeds[0], speeds[1]
+
+
+def dam_breaks(held: float, free: float) -> bool:
+    """Whether :func:`dam_break_speeds`' ``(held, free)`` say the hold let the dam break."""
+    return held >= DAM_MIN_SPEED and held >= DAM_SPEED_SHARE * free
 
 
 @torch.inference_mode()

@@ -131,22 +131,29 @@ def ranked_scored_checkpoints(results: list[Path]) -> list[tuple[Path, float, in
 
 
 def first_at_rest(
-    ranked: list[Path], drift_of: Callable[[Path], float], target: float
+    ranked: list[Path], check_of: Callable[[Path], dict], target: float
 ) -> tuple[Path, list[dict], bool]:
-    """The first of ``ranked`` checkpoints whose pool at rest drifts under ``target`` (cm per 100 frames,
-    ``drift_of``; :func:`gnsx.hardcases.rest_drift`), the drift of each checkpoint checked, in order, and
-    whether one passed.
+    """The first of ``ranked`` checkpoints that passes the rest gate, the figures of each checkpoint checked,
+    in order, and whether one passed.
+
+    ``check_of(checkpoint)`` gives ``drift_cm``, how far the pool at rest drifts (cm per 100 frames,
+    :func:`gnsx.hardcases.rest_drift`; under ``target`` to pass), and optionally ``dam_speed`` and
+    ``dam_speed_free``, the corner dam's fastest particle with and without the hold
+    (:func:`gnsx.hardcases.dam_break_speeds`; :func:`gnsx.hardcases.dam_breaks` to pass).
 
     The rule for shipping (README, Decisions): the lowest validation error among the checkpoints that pass
-    the hard case a checkpoint can fail while scoring well on falling water. When none passes, the first of
+    the hard cases a checkpoint can fail while scoring well on falling water. When none passes, the first of
     ``ranked`` (the caller warns)."""
+    from gnsx.hardcases import dam_breaks
+
     if not ranked:
         raise ValueError("first_at_rest: no checkpoint to check")
     checked = []
     for checkpoint in ranked:
-        drift_cm = float(drift_of(checkpoint))
-        checked.append({"checkpoint": str(checkpoint), "drift_cm": drift_cm})
-        if drift_cm < target:
+        check = {"checkpoint": str(checkpoint), **{k: float(v) for k, v in check_of(checkpoint).items()}}
+        checked.append(check)
+        dam_ok = "dam_speed" not in check or dam_breaks(check["dam_speed"], check["dam_speed_free"])
+        if check["drift_cm"] < target and dam_ok:
             return checkpoint, checked, True
     return ranked[0], checked, False
 
@@ -157,6 +164,17 @@ def rest_drift_of(checkpoint: Path) -> float:
     from gnsx.hardcases import rest_drift
 
     return rest_drift(load_simulator(checkpoint))
+
+
+def rest_checks_of(checkpoint: Path) -> dict:
+    """The rest gate's figures for a checkpoint file (:func:`first_at_rest`): the pool's drift and the corner
+    dam's speeds with and without the hold."""
+    from gnsx.checkpoints import load_simulator
+    from gnsx.hardcases import dam_break_speeds, rest_drift
+
+    simulator = load_simulator(checkpoint)
+    held, free = dam_break_speeds(simulator)
+    return {"drift_cm": rest_drift(simulator), "dam_speed": held, "dam_speed_free": free}
 
 
 def score_on_test_split(checkpoint: Path, data_root: Path, work_dir: Path) -> dict:
@@ -181,14 +199,14 @@ def export(
     select_best_val: bool = False,
     select_by_scores: list[Path] | None = None,
     rest_gate: bool = True,
-    drift_of: Callable[[Path], float] = rest_drift_of,
+    rest_check_of: Callable[[Path], dict] = rest_checks_of,
 ) -> dict:
     """Write the shipped-weights folder for ``run_dir``: its ``checkpoints/last.ckpt``, the given checkpoint,
     the saved checkpoint with the lowest logged validation rollout MSE (``select_best_val``), or the one
     with the lowest mean rollout MSE in re-scored evaluations (``select_by_scores``,
     :func:`ranked_scored_checkpoints`). With ``rest_gate`` a selection skips checkpoints whose pool at rest
-    drifts past issue 11's target (:func:`first_at_rest`, ``drift_of``); the drifts go into
-    ``results.json``.
+    drifts past issue 11's target or whose rest hold stops a dam from breaking (:func:`first_at_rest`,
+    ``rest_check_of``); the figures go into ``results.json``.
     Any checkpoint other than the last is evaluated on the test split here, so ``results.json`` always
     describes the shipped weights."""
     if not run_dir.is_dir():  # before the rest gate's minutes of rollouts
@@ -211,12 +229,12 @@ def export(
         if rest_gate:
             from gnsx.hardcases import REST_DRIFT_TARGET_CM
 
-            checkpoint, checked, passed = first_at_rest(candidates, drift_of, REST_DRIFT_TARGET_CM)
+            checkpoint, checked, passed = first_at_rest(candidates, rest_check_of, REST_DRIFT_TARGET_CM)
             gate = {"target_cm": REST_DRIFT_TARGET_CM, "passed": passed, "checked": checked}
             if not passed:
                 print(
-                    f"warning: no checkpoint's pool at rest drifts under {REST_DRIFT_TARGET_CM} cm per 100 "
-                    f"frames; shipping the best by score, {checkpoint}",
+                    f"warning: no checkpoint keeps the pool at rest under {REST_DRIFT_TARGET_CM} cm per 100 "
+                    f"frames while the corner dam breaks; shipping the best by score, {checkpoint}",
                     file=sys.stderr,
                 )
         _, val_mse, by = ranked[candidates.index(checkpoint)]
@@ -225,6 +243,7 @@ def export(
             target = gate["target_cm"]
             selected["by"] += (
                 f" among the checkpoints whose pool at rest drifts under {target} cm per 100 frames"
+                " and whose corner dam breaks"
             )
             selected["rest_gate"] = gate
     last = run_dir / "checkpoints" / "last.ckpt"
@@ -318,7 +337,8 @@ def _main(argv: list[str]) -> int:
     parser.add_argument(
         "--no-rest-gate",
         action="store_true",
-        help="with --select-*: keep checkpoints whose pool at rest drifts past 0.5 cm per 100 frames",
+        help="with --select-*: keep checkpoints whose pool at rest drifts past 0.5 cm per 100 frames "
+        "or whose corner dam the rest hold freezes",
     )
     parser.add_argument("--threads", default="auto", help="torch threads for the rest gate (default: auto)")
     args = parser.parse_args(argv)

@@ -159,11 +159,26 @@ def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
 
     drifts = {"a.ckpt": 4.5, "b.ckpt": 0.06, "c.ckpt": 0.1}
     ranked = [Path(n) for n in drifts]
-    checkpoint, checked, passed = first_at_rest(ranked, lambda c: drifts[c.name], 0.5)
+    checkpoint, checked, passed = first_at_rest(ranked, lambda c: {"drift_cm": drifts[c.name]}, 0.5)
     assert checkpoint == Path("b.ckpt") and passed
     assert [c["drift_cm"] for c in checked] == [4.5, 0.06]  # stops at the first that passes
-    checkpoint, checked, passed = first_at_rest(ranked, lambda c: 9.0, 0.5)
+    checkpoint, checked, passed = first_at_rest(ranked, lambda c: {"drift_cm": 9.0}, 0.5)
     assert checkpoint == Path("a.ckpt") and not passed and len(checked) == 3  # none passes: the best by score
+    # A hold that keeps the pool by freezing the corner dam does not pass (step 12k of the 2026-12-02 pools
+    # run with the hold at 0.75 g: 0.03 m/s held against 0.64 free).
+    dams = {"a.ckpt": (0.6, 0.7), "b.ckpt": (0.03, 0.64), "c.ckpt": (0.6, 0.72)}
+    checkpoint, checked, passed = first_at_rest(
+        ranked,
+        lambda c: {"drift_cm": 0.01, "dam_speed": dams[c.name][0], "dam_speed_free": dams[c.name][1]},
+        0.5,
+    )
+    assert checkpoint == Path("a.ckpt") and passed
+    checkpoint, checked, passed = first_at_rest(
+        ranked[1:],
+        lambda c: {"drift_cm": 0.01, "dam_speed": dams[c.name][0], "dam_speed_free": dams[c.name][1]},
+        0.5,
+    )
+    assert checkpoint == Path("c.ckpt") and passed and len(checked) == 2
 
     run = tmp_path / "run"
     (run / "checkpoints" / "permanent").mkdir(parents=True)
@@ -179,11 +194,11 @@ def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     drift_by_step = {10: 4.5, 20: 0.06, 30: 0.3}
 
     def drift_of(path):
-        return drift_by_step[int(path.stem[4:])]
+        return {"drift_cm": drift_by_step[int(path.stem[4:])]}
 
     dest = tmp_path / "shipped"
     # Step 30 is the last checkpoint: shipped without a test evaluation (none can run here: no data.root).
-    info = export(run, dest, select_best_val=True, drift_of=drift_of)
+    info = export(run, dest, select_best_val=True, rest_check_of=drift_of)
     assert info["global_step"] == 30
     selected = json.loads((dest / "results.json").read_text())["checkpoint"]["selected"]
     assert selected["val_rollout_mse"] == 0.2 and selected["rest_gate"]["passed"]
