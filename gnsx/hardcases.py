@@ -191,7 +191,8 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
     """Fastest water particle (m/s) of a block placed at rest in a corner (``on_walls``) over ``frames``
     frames, with every rule and with every rule but the rest hold: ``(held, free)``. The other half of the
     rest gate: a hold strong enough to keep any pool still also freezes a dam that should break (README,
-    Decisions: with its acceleration threshold at 1 g every checkpoint passed the pool and froze the dam)."""
+    Decisions: with its acceleration threshold at 1 g the pools run's checkpoints kept the pool still, and
+    its steps 9k and 12k froze the dam). A non-finite rollout gives ``inf``."""
     initial, types = case_start("on_walls", simulator.input_frames)
     initial = initial.to(simulator.acc_std.dtype)
     if simulator.acc_std.device.type != "cpu":
@@ -207,8 +208,9 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
 
 
 def dam_breaks(held: float, free: float) -> bool:
-    """Whether :func:`dam_break_speeds`' ``(held, free)`` say the hold let the dam break."""
-    return held >= DAM_MIN_SPEED and held >= DAM_SPEED_SHARE * free
+    """Whether :func:`dam_break_speeds`' ``(held, free)`` say the hold let the dam break (a blown-up rollout,
+    ``inf``, does not count as breaking)."""
+    return math.isfinite(held) and held >= DAM_MIN_SPEED and held >= DAM_SPEED_SHARE * free
 
 
 @torch.inference_mode()

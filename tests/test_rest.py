@@ -81,3 +81,4 @@ def test_a_dam_placed_at_rest_still_breaks():
     assert dam_breaks(held, free), (held, free)
     assert held > DAM_MIN_SPEED and held > DAM_SPEED_SHARE * free
     assert not dam_breaks(0.03, 0.64)  # frozen (a hold at 0.75 g on step 12k of the 2026-12-02 pools run)
+    assert not dam_breaks(math.inf, math.inf)  # blown up
