@@ -167,6 +167,15 @@ def case_start(name: str, frames: int, preset: Preset | None = None) -> tuple[to
     return torch.from_numpy(truth[:frames]).transpose(0, 1).contiguous(), torch.from_numpy(types)
 
 
+def _cpu_case(simulator: LearnedSimulator, name: str) -> tuple[LearnedSimulator, torch.Tensor, torch.Tensor]:
+    """The model on the CPU (a copy when it lives elsewhere: the caller's model stays put) and the case
+    ``name``'s first frames in the model's dtype, ``[N, H + 1, 2]``, with its ``[N]`` particle types."""
+    initial, types = case_start(name, simulator.input_frames)
+    if simulator.acc_std.device.type != "cpu":  # rollouts run on the CPU
+        simulator = copy.deepcopy(simulator).cpu()
+    return simulator, initial.to(simulator.acc_std.dtype), types
+
+
 @torch.inference_mode()
 def rest_drift(
     simulator: LearnedSimulator, frames: int = REST_GATE_FRAMES, rules: Rules | None = None
@@ -176,10 +185,7 @@ def rest_drift(
     ``rules`` (default: all). The quick part of the hard cases that a checkpoint can fail while scoring well
     on falling water (README, Decisions: the pretrain's step 10k drifts 4.5 cm); ``gnsx.pretrained`` checks
     it before shipping a checkpoint. NaN positions give ``inf``."""
-    initial, types = case_start("pool_rest", simulator.input_frames)
-    initial = initial.to(simulator.acc_std.dtype)
-    if simulator.acc_std.device.type != "cpu":  # rollouts run on the CPU; the caller's model stays put
-        simulator = copy.deepcopy(simulator).cpu()
+    simulator, initial, types = _cpu_case(simulator, "pool_rest")
     positions = rollout(simulator, initial, types, frames, rules=rules).double().numpy()
     if not np.isfinite(positions).all():
         return math.inf
@@ -193,10 +199,7 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
     rest gate: a hold strong enough to keep any pool still also freezes a dam that should break (README,
     Decisions: with its acceleration threshold at 1 g the pools run's checkpoints kept the pool still, and
     its steps 9k and 12k froze the dam). A non-finite rollout gives ``inf``."""
-    initial, types = case_start("on_walls", simulator.input_frames)
-    initial = initial.to(simulator.acc_std.dtype)
-    if simulator.acc_std.device.type != "cpu":
-        simulator = copy.deepcopy(simulator).cpu()
+    simulator, initial, types = _cpu_case(simulator, "on_walls")
     water = (types != KINEMATIC_PARTICLE_ID).numpy()
     dt = float(get_preset("small").frame_dt)
     speeds = []

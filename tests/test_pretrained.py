@@ -167,17 +167,13 @@ def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     # A hold that keeps the pool by freezing the corner dam does not pass (step 12k of the 2026-12-02 pools
     # run with the hold at 0.75 g: 0.03 m/s held against 0.64 free).
     dams = {"a.ckpt": (0.6, 0.7), "b.ckpt": (0.03, 0.64), "c.ckpt": (0.6, 0.72)}
-    checkpoint, checked, passed = first_at_rest(
-        ranked,
-        lambda c: {"drift_cm": 0.01, "dam_speed": dams[c.name][0], "dam_speed_free": dams[c.name][1]},
-        0.5,
-    )
+
+    def still_pool(c):
+        return {"drift_cm": 0.01, "dam_speed": dams[c.name][0], "dam_speed_free": dams[c.name][1]}
+
+    checkpoint, checked, passed = first_at_rest(ranked, still_pool, 0.5)
     assert checkpoint == Path("a.ckpt") and passed
-    checkpoint, checked, passed = first_at_rest(
-        ranked[1:],
-        lambda c: {"drift_cm": 0.01, "dam_speed": dams[c.name][0], "dam_speed_free": dams[c.name][1]},
-        0.5,
-    )
+    checkpoint, checked, passed = first_at_rest(ranked[1:], still_pool, 0.5)
     assert checkpoint == Path("c.ckpt") and passed and len(checked) == 2
 
     run = tmp_path / "run"
