@@ -130,8 +130,13 @@ def test_rules_read_from_configs_and_from_older_results():
         Rules.from_mapping({"hold_rest": "yes"})
     # results.json before the rules block: the two rules of the time at the top level, or nothing at all.
     assert Rules.from_results({}) == Rules.none()
-    assert Rules.from_results({"hold_rest": True, "incompressible": True}) == Rules(free_flight=False)
+    assert Rules.from_results({"hold_rest": True, "incompressible": True}) == Rules(
+        free_flight=False, level_pool=False
+    )
     assert Rules.from_results({"rules": Rules().to_dict()}) == Rules()
+    # A rules block before 2026-12-03 has no level_pool: those rollouts ran without test 4.
+    old = {key: value for key, value in Rules().to_dict().items() if key != "level_pool"}
+    assert Rules.from_results({"rules": old}) == Rules(level_pool=False)
 
 
 def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():

@@ -82,7 +82,9 @@ def rollout(
     if rules.incompressible:
         radius = float(simulator.rules_radius)
         limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, radius)
-    rest = RestHold.for_simulator(simulator) if rules.hold_rest else None
+    rest = None
+    if rules.hold_rest:
+        rest = RestHold.for_simulator(simulator, **({} if rules.level_pool else {"level": None}))
     flight = FreeFlight.for_simulator(simulator) if rules.free_flight else None
     window = initial_positions
     predictions = []
@@ -95,7 +97,7 @@ def rollout(
             next_position, free = flight.apply(window, next_position, particle_type)
             moves = dynamic & ~free
         if rest is not None:
-            next_position = rest.apply(window, next_position, moves)
+            next_position = rest.apply(window, next_position, moves, static[:, 0])
         if limit is not None:
             allowed = limit.allowed_density(window[:, -1], dynamic)  # no water pushed below its last density
             next_position = limit.apply(next_position, moves, allowed)

@@ -8,13 +8,15 @@ field               rule                                         module
 ==================  ===========================================  =============================================
 ``free_flight``     a free rigid cluster of water falls at g     :class:`gnsx.model.freeflight.FreeFlight`
 ``hold_rest``       water at rest stays at rest                  :class:`gnsx.model.rest.RestHold`
+``level_pool``      a level pool from wall to wall is at rest    :class:`gnsx.model.rest.RestHold`, test 4
 ``incompressible``  water does not compress                      :class:`gnsx.model.density.DensityLimit`
 ==================  ===========================================  =============================================
 
 and last the walls and ramps (:class:`gnsx.model.boundary.Boundary`), switched by the rollout's own
 ``constrain`` (``False``: the raw model, none of these). Every rule is on by default; the physics-free
 baseline gets none of them, only the boundary. Configs spell the rules as a block (``rules: {free_flight:
-true, hold_rest: true, incompressible: true}``) and ``results.json`` records the block the rollouts used.
+true, hold_rest: true, level_pool: true, incompressible: true}``) and ``results.json`` records the block the
+rollouts used.
 """
 
 from __future__ import annotations
@@ -34,11 +36,13 @@ class Rules:
     free_flight: bool = True
     hold_rest: bool = True
     incompressible: bool = True
+    #: Test 4 of the rest hold (hydrostatics of deep water); only with ``hold_rest``. Added 2026-12-03.
+    level_pool: bool = True
 
     @classmethod
     def none(cls) -> Rules:
         """Every rule off: the model and the boundary alone."""
-        return cls(free_flight=False, hold_rest=False, incompressible=False)
+        return cls(free_flight=False, hold_rest=False, incompressible=False, level_pool=False)
 
     def to_dict(self) -> dict[str, bool]:
         return dataclasses.asdict(self)
@@ -72,11 +76,12 @@ class Rules:
     def from_results(cls, results: Mapping[str, Any]) -> Rules:
         """The rules a ``results.json`` was scored with. Files written before the ``rules`` block name
         ``incompressible`` and ``hold_rest`` at the top level, or nothing (the boundary alone); neither had
-        free flight."""
+        free flight, and files before 2026-12-03 no ``level_pool`` (test 4 did not exist: off)."""
         if "rules" in results:
-            return cls(**results["rules"])
+            return cls(**{"level_pool": False, **results["rules"]})
         return cls(
             free_flight=False,
             hold_rest=bool(results.get("hold_rest", False)),
             incompressible=bool(results.get("incompressible", False)),
+            level_pool=False,
         )
