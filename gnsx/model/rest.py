@@ -161,15 +161,18 @@ def level_pool(position: Tensor, calm: Tensor, supported: Tensor, hold: RestHold
     columns = max(int((right - left) // hold.radius), 1)
     x, y = position[calm, 0].double(), position[calm, 1].double()
     column = ((x - left) / (right - left) * columns).floor().long().clamp(0, columns - 1)
-    count = torch.zeros(columns, dtype=torch.long).index_add_(0, column, torch.ones_like(column))
+    device = x.device
+    count = torch.bincount(column, minlength=columns)
     if not bool((count > 0).all()):
         return False
-    top = torch.full((columns,), -math.inf, dtype=torch.float64).scatter_reduce(0, column, y, "amax")
+    top = torch.full((columns,), -math.inf, dtype=torch.float64, device=device)
+    top = top.scatter_reduce(0, column, y, "amax")
     if float(top.max() - top.min()) > hold.level:
         return False
-    bottom = torch.full((columns,), math.inf, dtype=torch.float64).scatter_reduce(0, column, y, "amin")
+    bottom = torch.full_like(top, math.inf).scatter_reduce(0, column, y, "amin")
     on_floor = bottom - hold.floor <= hold.radius
     # A column resting on a ramp: its lowest calm particle touches a static one.
     lowest = y == bottom[column]
-    on_static = torch.zeros(columns, dtype=torch.bool).index_fill_(0, column[lowest & supported[calm]], True)
+    on_static = torch.zeros(columns, dtype=torch.bool, device=device)
+    on_static = on_static.index_fill_(0, column[lowest & supported[calm]], True)
     return bool((on_floor | on_static).all())
