@@ -116,7 +116,7 @@ def _held(hold, current, velocity=None, static=None):
 
 
 def test_a_level_pool_from_wall_to_wall_is_held_whatever_the_model_predicts():
-    """Test 4: deep water the model sees falling (0.8-0.97 g in the ``dense_10x`` block) is held when it
+    """Test 4: deep water the model sees falling (0.67-0.97 g in the ``dense_10x`` block) is held when it
     is a supported, level pool from wall to wall; without test 4 nothing of it is."""
     pool = _block((0.1, 0.1), (0.9, 0.6))
     assert _held(LEVEL_HOLD, pool).all()

@@ -21,7 +21,7 @@ from gnsx.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
 from gnsx.model.density import DensityLimit
 from gnsx.model.freeflight import FreeFlight
-from gnsx.model.rest import RestHold
+from gnsx.model.rest import LEVEL, RestHold
 from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 
@@ -84,7 +84,7 @@ def rollout(
         limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, radius)
     rest = None
     if rules.hold_rest:
-        rest = RestHold.for_simulator(simulator, **({} if rules.level_pool else {"level": None}))
+        rest = RestHold.for_simulator(simulator, level=LEVEL if rules.level_pool else None)
     flight = FreeFlight.for_simulator(simulator) if rules.free_flight else None
     window = initial_positions
     predictions = []
