@@ -48,7 +48,7 @@ from gnsx.numerics import Diverged
 from gnsx.precision import resolve_precision
 from gnsx.resilience import AtomicCheckpointIO, Heartbeat, remove_stale_temporaries, wall_clock_checkpoint
 from gnsx.scoring import gravity_per_frame
-from gnsx.system import GNSSystem
+from gnsx.system import GNSSystem, samples_of
 from gnsx.threads import apply_threads
 from gnsx.time_budget import TimeBudget, TrainingClock, parse_duration
 
@@ -149,7 +149,12 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
     )
     if state is not None:
         system.load_state_dict(state["state_dict"])
-        log.info("Weights from %s (train.init_weights); a fresh schedule and optimizer", init)
+        before = samples_of(state)
+        system.samples_seen = before or 0
+        log.info(
+            "Weights from %s (train.init_weights, %s training samples); a fresh schedule and optimizer",
+            init, f"{before:,}" if before is not None else "an older checkpoint that did not count its",
+        )  # fmt: skip
     return system
 
 
@@ -490,12 +495,14 @@ def local_processes(cfg: DictConfig) -> int:
 
 def schedule_summary(cfg: DictConfig, trainer: L.Trainer, clock: TrainingClock, system: GNSSystem) -> dict:
     """How many steps the run got against its schedule (also logged): ``global_step``, ``scheduled_steps``
-    (``train.max_steps``), ``fitted_steps`` (the time budget's, or None) and ``skipped_steps`` (NaN/Inf)."""
+    (``train.max_steps``), ``fitted_steps`` (the time budget's, or None), ``skipped_steps`` (NaN/Inf) and
+    ``samples_seen`` (training samples the final weights have seen, a fine-tune's start included)."""
     planned = getattr(clock, "planned_steps", None) or int(cfg.train.max_steps)
     fitted = getattr(clock, "fitted", None)
     done = int(trainer.global_step)
     summary = {"global_step": done, "scheduled_steps": planned, "fitted_steps": fitted,
-               "skipped_steps": int(system.skipped.total)}  # fmt: skip
+               "skipped_steps": int(system.skipped.total),
+               "samples_seen": int(system.samples_seen)}  # fmt: skip
     rate = clock.summary().get("steps_per_s")
     fitted_text = f"; the time budget fitted the schedule to {fitted:,}" if fitted else ""
     log.info(

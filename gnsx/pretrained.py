@@ -24,17 +24,25 @@ from gnsx.atomic import atomic_path
 from gnsx.checkpoints import read_checkpoint
 from gnsx.cli import ArgumentParser, check_output_path, run_main
 from gnsx.errors import CheckpointError, DataError
+from gnsx.system import SAMPLES_KEY, samples_of
 from gnsx.threads import apply_threads
 
 
 def strip_checkpoint(src: Path, dst: Path) -> dict:
-    """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header."""
+    """Copy a Lightning checkpoint without optimizer/scheduler/callback state. Returns its small header
+    (``samples_seen``: the training samples its weights saw, a fine-tune's start included; absent for
+    checkpoints from before 2026-12-03)."""
     state = read_checkpoint(src)  # weights_only: no pickled objects
-    wanted = ("state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version")
+    wanted = (
+        "state_dict", "hyper_parameters", "global_step", "epoch", "pytorch-lightning_version", SAMPLES_KEY,
+    )  # fmt: skip
     keep = {k: state[k] for k in wanted if k in state}
     with atomic_path(dst) as tmp:
         torch.save(keep, tmp)
-    return {"global_step": int(state.get("global_step", 0)), "source": str(src)}
+    header = {"global_step": int(state.get("global_step", 0)), "source": str(src)}
+    if samples_of(state) is not None:
+        header["samples_seen"] = samples_of(state)
+    return header
 
 
 def merge_curves(run_dir: Path) -> list[dict]:

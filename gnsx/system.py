@@ -50,6 +50,16 @@ def acceleration_loss(predicted: torch.Tensor, target: torch.Tensor, kind: str =
     return torch.where(squared <= delta * delta, squared, 2 * delta * length - delta * delta).mean()
 
 
+SAMPLES_KEY = "gnsx_samples_seen"
+
+
+def samples_of(checkpoint: dict) -> int | None:
+    """Training samples the checkpoint's weights have seen (:attr:`GNSSystem.samples_seen`, fine-tunes
+    counting their start), or None for checkpoints from before 2026-12-03, which did not record it."""
+    value = checkpoint.get(SAMPLES_KEY)
+    return None if value is None else int(value)
+
+
 class GNSSystem(L.LightningModule):
     """Loss, optimisation and validation of a learned simulator.
 
@@ -113,6 +123,11 @@ class GNSSystem(L.LightningModule):
         self.save_hyperparameters()
         self.skipped = SkippedSteps(max_skipped_steps)
         self._skipping = False  # the current step was skipped
+        # Training samples (graphs) the weights have seen, counting the run a fine-tune started from
+        # (``gnsx.pipeline.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
+        # is measured in samples, whatever the batch size or the number of runs (tests/test_pretrained.py).
+        # Per process under DDP.
+        self.samples_seen = 0
         self.simulator = LearnedSimulator(
             dim=dim,
             bounds=bounds,
@@ -186,6 +201,7 @@ class GNSSystem(L.LightningModule):
         h = self.hparams
         loss = acceleration_loss(predicted[dynamic], target[dynamic], h.loss, h.huber_delta)
         size = int(batch.num_graphs)
+        self.samples_seen += size
         bad = not bool(torch.isfinite(loss.detach()))
         # Every rank skips together (gnsx.numerics); a single process decides alone.
         if bool(self.trainer.strategy.reduce_boolean_decision(bad, all=False)):
@@ -218,9 +234,11 @@ class GNSSystem(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["gnsx_skipped_steps"] = int(self.skipped.total)
+        checkpoint[SAMPLES_KEY] = int(self.samples_seen)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.skipped.total = int(checkpoint.get("gnsx_skipped_steps", 0))
+        self.samples_seen = samples_of(checkpoint) or 0
 
     # -- validation: full rollouts ---------------------------------------------------------------------
     def validation_step(self, trajectory: dict, batch_idx: int) -> None:

@@ -53,8 +53,10 @@ def test_shipped_weights_match_their_config_and_budget(shipped):
         demo = compose(config_name="config")
     # The run saw at least 5x the training samples the demo gets: its time budget fits about half its step
     # cap on this CPU (8,664-9,806 steps of 20,000 measured); validation chose which checkpoint ships. (The
-    # pretrain is time-fitted too, so a busy machine gives it fewer than its 100k-step cap.)
-    shipped_samples = results["train_steps"] * config.data.batch_size
+    # pretrain is time-fitted too, so a busy machine gives it fewer than its 100k-step cap.) A fine-tune
+    # counts the samples of the weights it started from (`samples_seen`, recorded since 2026-12-03; older
+    # runs: steps x batch).
+    shipped_samples = results.get("samples_seen") or results["train_steps"] * config.data.batch_size
     assert shipped_samples >= 5 * (demo.train.max_steps // 2) * demo.data.batch_size
     state = torch.load(SHIPPED / "model.ckpt", map_location="cpu", weights_only=False)
     assert state["global_step"] == results["checkpoint"]["global_step"] <= results["train_steps"]

@@ -213,17 +213,21 @@ def test_ddp_with_two_cpu_processes_over_gloo(tmp_path, tiny_dataset):
 
 def test_init_weights_fine_tunes_from_a_checkpoint_with_a_fresh_schedule(tmp_path, tiny_dataset):
     """train.init_weights: the run starts from the checkpoint's weights (and statistics), step 0, fresh
-    schedule; with a learning rate of ~0 the weights stay the checkpoint's."""
+    schedule; with a learning rate of ~0 the weights stay the checkpoint's. Its training samples count the
+    first run's (the shipped weights' budget is in samples: tests/test_pretrained.py)."""
     common = ["logger=none", "train.max_time=null", "evaluate.enabled=false"]
-    first = _run_train(tmp_path, tiny_dataset, "first", [*common, "train.max_steps=3"])
+    first = _run_train(tmp_path, tiny_dataset, "first", [*common, "train.max_steps=3", "data.batch_size=2"])
     tuned = _run_train(
         tmp_path, tiny_dataset, "tuned",
         [*common, "train.max_steps=2", f"train.init_weights={first}", "train.lr_init=1e-30",
-         "train.lr_final=1e-30", "train.noise_std=0"],
+         "train.lr_final=1e-30", "train.noise_std=0", "data.batch_size=1"],
     )  # fmt: skip
     before = torch.load(first / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     after = torch.load(tuned / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert after["global_step"] == 2  # a fresh run, not a resumed one
+    assert before["gnsx_samples_seen"] == 3 * 2
+    assert after["gnsx_samples_seen"] == 3 * 2 + 2 * 1
+    assert json.loads((tuned / "results.json").read_text())["samples_seen"] == 8
     for key, value in before["state_dict"].items():
         assert torch.allclose(after["state_dict"][key], value, atol=1e-6), key
     for key in ("vel_std", "acc_std", "bounds"):
