@@ -40,8 +40,9 @@ def strip_checkpoint(src: Path, dst: Path) -> dict:
     with atomic_path(dst) as tmp:
         torch.save(keep, tmp)
     header = {"global_step": int(state.get("global_step", 0)), "source": str(src)}
-    if samples_of(state) is not None:
-        header["samples_seen"] = samples_of(state)
+    samples = samples_of(state)
+    if samples is not None:
+        header["samples_seen"] = samples
     return header
 
 

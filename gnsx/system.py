@@ -126,7 +126,8 @@ class GNSSystem(L.LightningModule):
         # Training samples (graphs) the weights have seen, counting the run a fine-tune started from
         # (``gnsx.pipeline.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
         # is measured in samples, whatever the batch size or the number of runs (tests/test_pretrained.py).
-        # Per process under DDP.
+        # Per process under DDP, and a resumed run of a checkpoint from before 2026-12-03 counts from 0:
+        # both undercount, so the budget rule can only be stricter.
         self.samples_seen = 0
         self.simulator = LearnedSimulator(
             dim=dim,
