@@ -149,13 +149,32 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
     )
     if state is not None:
         system.load_state_dict(state["state_dict"])
-        before = samples_of(state)
-        system.samples_seen = before or 0
-        log.info(
-            "Weights from %s (train.init_weights, %s training samples); a fresh schedule and optimizer",
-            init, f"{before:,}" if before is not None else "an older checkpoint that did not count its",
-        )  # fmt: skip
+        before, how = samples_before(Path(init), state)
+        system.samples_seen = before
+        log.info("Weights from %s (train.init_weights, %s training samples, %s); a fresh schedule and "
+                 "optimizer", init, f"{before:,}", how)  # fmt: skip
     return system
+
+
+def samples_before(path: Path, state: dict) -> tuple[int, str]:
+    """Training samples the weights of checkpoint ``path`` (loaded as ``state``) have seen, and how we know.
+
+    Checkpoints since 2026-12-03 record the count (:func:`gnsx.system.samples_of`). For an older one (the
+    shipped ``pretrained/small`` among them) it is estimated as its ``global_step`` times the batch size of
+    the config that trained it: ``config.yaml`` beside the file (shipped weights) or the run's
+    ``.hydra/config.yaml`` above ``checkpoints/[permanent/]``. Without either it is 0, which can only make the
+    budget rule (tests/test_pretrained.py) stricter.
+    """
+    counted = samples_of(state)
+    if counted is not None:
+        return counted, "counted"
+    step = int(state.get("global_step") or 0)
+    for folder in path.parents[:3]:
+        for config in (folder / "config.yaml", folder / ".hydra" / "config.yaml"):
+            batch = OmegaConf.select(OmegaConf.load(config), "data.batch_size") if config.is_file() else None
+            if batch is not None:
+                return step * int(batch), f"estimated: {step:,} steps x batch {batch} of {config}"
+    return 0, "unknown: an older checkpoint with no config beside it; counted from 0"
 
 
 def build_loggers(cfg: DictConfig, run_dir: Path, name: str | None = None, group: str | None = None) -> list:

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from gnsx.data.metadata import Metadata
-from gnsx.pipeline import architecture, build_system
+from gnsx.pipeline import architecture, build_system, samples_before
 from gnsx.precision import resolve_precision
 from gnsx.system import GNSSystem
 
@@ -209,6 +209,23 @@ def test_ddp_with_two_cpu_processes_over_gloo(tmp_path, tiny_dataset):
     assert (run / "train_ddp_process_1.log").exists()
     state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert state["global_step"] == 4
+
+
+def test_samples_before_estimates_older_checkpoints_from_the_config_that_trained_them(tmp_path):
+    """A checkpoint from before the sample count (the shipped weights) counts its steps x its config's batch:
+    shipped layout (config.yaml beside it) and run layout (.hydra/config.yaml above checkpoints/permanent/);
+    a recorded count wins; with no config it counts from 0 (the budget rule can only get stricter)."""
+    shipped = tmp_path / "shipped"
+    shipped.mkdir()
+    OmegaConf.save(OmegaConf.create({"data": {"batch_size": 2}}), shipped / "config.yaml")
+    assert samples_before(shipped / "model.ckpt", {"global_step": 40000})[0] == 80000
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    OmegaConf.save(OmegaConf.create({"data": {"batch_size": 8}}), run / ".hydra" / "config.yaml")
+    ckpt = run / "checkpoints" / "permanent" / "step00000010.ckpt"
+    assert samples_before(ckpt, {"global_step": 10})[0] == 80
+    assert samples_before(ckpt, {"global_step": 10, "gnsx_samples_seen": 7}) == (7, "counted")
+    assert samples_before(tmp_path / "alone" / "x.ckpt", {"global_step": 10})[0] == 0
 
 
 def test_init_weights_fine_tunes_from_a_checkpoint_with_a_fresh_schedule(tmp_path, tiny_dataset):
