@@ -71,6 +71,7 @@ def check_train_config(cfg: DictConfig) -> None:
         check_int(_get(cfg, f"train.{key}"), f"train.{key}", minimum=0)
     check_int(_get(cfg, "train.max_skipped_steps", 0), "train.max_skipped_steps", minimum=0)
     check_int(_get(cfg, "train.pushforward_steps", 0), "train.pushforward_steps", minimum=0)
+    check_int(_get(cfg, "train.lr_warmup_steps", 0), "train.lr_warmup_steps", minimum=0)
     check_int(_get(cfg, "train.val_max_trajectories"), "train.val_max_trajectories", 1, allow_none=True)
     for key in ("lr_init", "lr_final", "noise_decay", "huber_delta"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True)

@@ -143,6 +143,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         lr_final=float(train.lr_final),
         lr_decay_start=int(train.lr_decay_start),
         lr_decay_end=int(train.lr_decay_end),
+        lr_warmup_steps=int(OmegaConf.select(train, "lr_warmup_steps", default=0)),
         loss=str(train.loss),
         huber_delta=float(train.huber_delta),
         max_skipped_steps=int(OmegaConf.select(train, "max_skipped_steps", default=20)),

@@ -21,6 +21,19 @@ def learning_rate(step: int, lr_init: float, lr_final: float, decay_start: int, 
     return lr_init * (lr_final / lr_init) ** fraction
 
 
+def warmup_factor(step: int, warmup_steps: int) -> float:
+    """Linear LR warmup: ``(step + 1) / warmup_steps`` for the first ``warmup_steps`` steps, then 1.
+
+    For fine-tunes (``train.init_weights``): their optimizer starts fresh, and Adam's first updates move every
+    weight by about the learning rate whatever its gradient, a jolt a trained model does not recover from
+    within a short schedule (README, Decisions). It multiplies the LR only; the noise follows
+    :func:`learning_rate` as before.
+    """
+    if warmup_steps <= 0 or step >= warmup_steps:
+        return 1.0
+    return (step + 1) / warmup_steps
+
+
 def noise_std(
     step: int, base_std: float, decay: float, lr_init: float, lr_final: float, **lr_kwargs
 ) -> float:

@@ -18,7 +18,7 @@ from gnsx.model.mirror import random_mirror
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.numerics import SkippedSteps, drop_gradients, finite_gradients
-from gnsx.schedule import learning_rate, noise_std
+from gnsx.schedule import learning_rate, noise_std, warmup_factor
 from gnsx.scoring import onestep_mse
 
 #: Training losses on the normalised acceleration (``train.loss``).
@@ -76,6 +76,7 @@ class GNSSystem(L.LightningModule):
         mirror: train on each sample or its left-right reflection, with probability 1/2
             (:mod:`gnsx.model.mirror`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
+        lr_warmup_steps: linear LR ramp over the first steps (:func:`gnsx.schedule.warmup_factor`; 0: none).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
             ``"huber"`` (squared below ``huber_delta``, linear above, on the error vector's length; see
@@ -106,6 +107,7 @@ class GNSSystem(L.LightningModule):
         lr_final: float = 1.0e-6,
         lr_decay_start: int = 1_000_000,
         lr_decay_end: int = 1_500_000,
+        lr_warmup_steps: int = 0,
         onestep_stride: int = 10,
         loss: str = "mse",
         huber_delta: float = 1.0,
@@ -173,7 +175,12 @@ class GNSSystem(L.LightningModule):
         optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr_init, fused=True)
         # The lambda reads the schedule at every step, so set_schedule_scale takes effect mid-run.
         scheduler = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda step: learning_rate(step, **self._lr_kwargs()) / self.hparams.lr_init
+            optimizer,
+            lambda step: (
+                learning_rate(step, **self._lr_kwargs())
+                / self.hparams.lr_init
+                * warmup_factor(step, self.hparams.get("lr_warmup_steps", 0))
+            ),  # lr_warmup_steps is absent from checkpoints before 2026-12-03
         )
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
 

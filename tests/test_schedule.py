@@ -2,7 +2,7 @@ import math
 
 import pytest
 
-from gnsx.schedule import learning_rate, noise_std
+from gnsx.schedule import learning_rate, noise_std, warmup_factor
 
 
 def test_learning_rate_follows_paper_eq8():
@@ -23,3 +23,31 @@ def test_noise_decays_with_lr_to_04x():
     assert noise_std(20, 3e-4, 0.4, **kw) == pytest.approx(1.2e-4)  # the paper's final 0.00012
     assert noise_std(15, 3e-4, 0.4, **kw) == pytest.approx(3e-4 * math.sqrt(0.4))
     assert noise_std(15, 3e-4, 1.0, **kw) == pytest.approx(3e-4)
+
+
+def test_warmup_ramps_the_learning_rate_linearly_then_leaves_it():
+    assert warmup_factor(0, 0) == 1.0
+    assert warmup_factor(0, 4) == 0.25
+    assert warmup_factor(2, 4) == 0.75
+    assert warmup_factor(3, 4) == 1.0
+    assert warmup_factor(100, 4) == 1.0
+
+
+def test_system_optimizer_follows_warmup_times_decay():
+    from gnsx.system import GNSSystem
+
+    system = GNSSystem(
+        model=dict(latent_size=8, mlp_hidden_size=8, mp_steps=1),
+        dim=2, bounds=[[0.0, 1.0], [0.0, 1.0]], radius=0.1,
+        vel_mean=[0.0, 0.0], vel_std=[1.0, 1.0], acc_mean=[0.0, 0.0], acc_std=[1.0, 1.0],
+        lr_init=1e-3, lr_final=1e-5, lr_decay_start=0, lr_decay_end=100, lr_warmup_steps=10,
+    )  # fmt: skip
+    scheduler = system.configure_optimizers()["lr_scheduler"]["scheduler"]
+    lrs = []
+    for _ in range(12):
+        lrs.append(scheduler.get_last_lr()[0])
+        scheduler.optimizer.step()
+        scheduler.step()
+    kw = dict(lr_init=1e-3, lr_final=1e-5, decay_start=0, decay_end=100)
+    for step, lr in enumerate(lrs):
+        assert lr == pytest.approx(learning_rate(step, **kw) * min(1.0, (step + 1) / 10), rel=1e-9)
