@@ -25,9 +25,9 @@ def warmup_factor(step: int, warmup_steps: int) -> float:
     """Linear LR warmup: ``(step + 1) / warmup_steps`` for the first ``warmup_steps`` steps, then 1.
 
     For fine-tunes (``train.init_weights``): their optimizer starts fresh, and Adam's first updates move every
-    weight by about the learning rate whatever its gradient, a jolt a trained model does not recover from
-    within a short schedule (README, Decisions). It multiplies the LR only; the noise follows
-    :func:`learning_rate` as before.
+    weight by about the learning rate whatever its gradient. Measured once (README, Decisions): 1,000 steps
+    of it did not change a fine-tune of the shipped weights' validation error at 2k steps (0.0171 against
+    0.0178 without). It multiplies the LR only; the noise follows :func:`learning_rate` as before.
     """
     if warmup_steps <= 0 or step >= warmup_steps:
         return 1.0
