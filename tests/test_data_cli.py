@@ -184,3 +184,16 @@ def test_generate_pool_depth_reaches_the_preset(tmp_path, generated_presets, cap
     assert calls[0].pool_depth_range == (0.25, 0.75) and calls[0].rest_fraction == 1.0
     assert main([*argv, "--pool-depth", "0.5", "0.2"]) == 2  # min above max
     assert "error: --pool-depth: preset 'small': pool_depth_range must be" in capsys.readouterr().err
+
+
+def test_generate_dam_fraction_reaches_the_preset_and_is_checked_with_the_pools(
+    tmp_path, generated_presets, capsys
+):
+    calls = generated_presets
+    argv = ["generate", "--preset", "small", "--out", str(tmp_path / "d"), "--rest-fraction", "0.2"]
+    assert main([*argv, "--dam-fraction", "0.1"]) == 0
+    assert calls[0].rest_fraction == 0.2 and calls[0].dam_fraction == 0.1
+    assert main([*argv, "--dam-fraction", "0.9"]) == 2  # pools and dams above every scene
+    assert "error: --dam-fraction: preset 'small': rest_fraction + dam_fraction must not exceed 1" in (
+        capsys.readouterr().err
+    )

@@ -18,11 +18,13 @@ from gnsx.data.store import SplitReader
 from gnsx.errors import DataError
 from gnsx.mpm.generate import (
     generate_dataset,
+    is_dam_scene,
     is_rest_scene,
     run_scene,
     scene_rng,
     simulate_scene,
     simulate_split_item,
+    split_scene,
 )
 from gnsx.mpm.presets import get_preset
 from gnsx.mpm.scenes import Scene, WaterBlock, sample_rest_scene, sample_scene, scene_particles
@@ -353,6 +355,24 @@ def test_rest_fraction_makes_some_training_scenes_pools_and_changes_nothing_else
             assert a.integers(2**63) == b.integers(2**63)
 
 
+def test_dam_fraction_keeps_every_pool_and_changes_only_the_scenes_it_makes_dams():
+    pools_only = get_preset("small", rest_fraction=0.2)
+    both = get_preset("small", rest_fraction=0.2, dam_fraction=0.1)
+    dams = [i for i in range(200) if is_dam_scene(both, 0, "train", i)]
+    assert 8 <= len(dams) <= 35
+    assert not any(is_dam_scene(pools_only, 0, "train", i) for i in range(200))
+    assert not any(is_dam_scene(get_preset("small", dam_fraction=1.0), 0, s, 0) for s in ("valid", "test"))
+    for i in range(200):
+        assert is_rest_scene(both, 0, "train", i) == is_rest_scene(pools_only, 0, "train", i)
+        assert not (is_rest_scene(both, 0, "train", i) and i in dams)
+        scene, placement = split_scene(both, 0, "train", i)
+        if i in dams:
+            (block,) = scene.blocks
+            assert block.velocity == (0.0, 0.0) and block.lower[1] == both.bounds[0]
+        else:
+            assert (scene, placement) == split_scene(pools_only, 0, "train", i)
+
+
 def test_generate_dataset_writes_a_readable_dataset_independent_of_workers(tmp_path):
     # 30 frames: in 12 a block in free flight may not accelerate sideways at all (acc_std 0 is refused).
     preset = _tiny_preset(num_frames=30)
@@ -467,6 +487,16 @@ def test_a_cache_of_other_settings_is_refused_naming_it(tmp_path, monkeypatch, c
     err = capsys.readouterr().err
     assert err.startswith(f"error: {cache}: ") and "seed 0 (now 2)" in err and err.count("\n") == 1
     assert (cache / "generation.json").read_text() == record  # never deleted or rewritten
+    # A record written before dam_fraction existed was generated without dams: accepted as the same settings.
+    older = json.loads(record)
+    del older["preset_settings"]["dam_fraction"]
+    (cache / "generation.json").write_text(json.dumps(older))
+    with pytest.raises(_Killed):
+        generate_dataset(out, preset, seed=0, workers=1, progress=False)
+    with pytest.raises(DataError, match=r"preset dam_fraction 0.0 \(now 0.5\)"):
+        dams = dataclasses.replace(preset, dam_fraction=0.5)
+        generate_dataset(out, dams, seed=0, workers=1, progress=False)
+    (cache / "generation.json").write_text(record)
     # Other trajectory counts are the same generation (trajectory i does not depend on them): accepted.
     with pytest.raises(_Killed):
         generate_dataset(out, dataclasses.replace(preset, trajectories={"train": 3}), seed=0, workers=1)

@@ -18,6 +18,7 @@ from gnsx.mpm.scenes import (
     Scene,
     WaterBlock,
     ramp_particles,
+    sample_dam_scene,
     sample_rest_scene,
     sample_scene,
     scene_particles,
@@ -182,7 +183,34 @@ def test_rest_scenes_are_pools_at_rest_wall_to_wall_with_ramps_above():
         sample_rest_scene(np.random.default_rng(0), get_preset("small", pool_depth_range=(0.1, 0.8)))
 
 
-@pytest.mark.parametrize("field", ["rest_fraction", "rest_block_probability"])
+def test_dam_scenes_are_one_block_at_rest_on_the_floor_with_ramps_clear():
+    preset = get_preset("small", dam_fraction=1.0)
+    lo, hi = preset.bounds
+    sides = set()
+    for seed in range(100):
+        scene = sample_dam_scene(np.random.default_rng(seed), preset)
+        (block,) = scene.blocks
+        assert block.lower[1] == lo and block.velocity == (0.0, 0.0) and len(scene.ramps) >= 1
+        assert lo <= block.lower[0] < block.upper[0] <= hi
+        assert preset.block_width_range[0] - 1e-12 <= block.size[0] <= preset.block_width_range[1] + 1e-12
+        assert preset.block_height_range[0] <= block.size[1] <= preset.block_height_range[1]
+        sides.add("left" if block.lower[0] == lo else "right" if block.upper[0] == hi else "free")
+        for p0, p1 in scene.ramps:
+            corners = np.array(block.lower), np.array(block.upper)
+            gap = segment_rect_distance(np.array(p0), np.array(p1), *corners)
+            assert gap >= preset.ramp_clearance
+    assert sides == {"left", "right", "free"}
+    with pytest.raises(ValueError, match="largest block"):
+        sample_dam_scene(np.random.default_rng(0), get_preset("small", block_width_range=(0.1, 0.9)))
+
+
+def test_pools_and_dams_together_cannot_exceed_every_scene():
+    get_preset("small", rest_fraction=0.6, dam_fraction=0.4)
+    with pytest.raises(ValueError, match=r"rest_fraction \+ dam_fraction must not exceed 1"):
+        get_preset("small", rest_fraction=0.6, dam_fraction=0.5)
+
+
+@pytest.mark.parametrize("field", ["rest_fraction", "dam_fraction", "rest_block_probability"])
 def test_rest_probabilities_are_validated(field):
     with pytest.raises(ValueError, match=f"{field} must be a probability"):
         get_preset("small", **{field: 1.5})

@@ -3,7 +3,8 @@
 Subcommands::
 
     python -m gnsx.data generate --preset small|waterramps --out DIR [--seed N] [--workers 2]
-                                 [--train N --valid N --test N] [--rest-fraction F] [--overwrite]
+                                 [--train N --valid N --test N] [--rest-fraction F]
+                                 [--dam-fraction F] [--overwrite]
         Simulate WaterRamps-like scenes with gnsx's MPM solver and write a gnsx dataset to DIR.
         --train/--valid/--test override the preset's number of trajectories per split. A killed run resumes:
         finished trajectories are kept in DIR.partial/ until the dataset is written, and rerunning the same
@@ -84,6 +85,12 @@ def _parser() -> argparse.ArgumentParser:
         help="share of training scenes that start as a pool at rest (preset's, 0 for both presets)",
     )
     gen.add_argument(
+        "--dam-fraction",
+        type=float,
+        metavar="F",
+        help="share of training scenes that start as a dam break, a block at rest on the floor (preset's, 0)",
+    )
+    gen.add_argument(
         "--pool-depth",
         type=float,
         nargs=2,
@@ -150,6 +157,11 @@ def _generate(args: argparse.Namespace) -> int:
             preset = dataclasses.replace(preset, rest_fraction=args.rest_fraction)
         except ValueError as e:
             raise DataError("--rest-fraction", str(e)) from None
+    if args.dam_fraction is not None:
+        try:
+            preset = dataclasses.replace(preset, dam_fraction=args.dam_fraction)
+        except ValueError as e:
+            raise DataError("--dam-fraction", str(e)) from None
     if args.pool_depth is not None:
         try:
             preset = dataclasses.replace(preset, pool_depth_range=tuple(args.pool_depth))

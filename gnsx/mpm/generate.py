@@ -39,7 +39,14 @@ from gnsx.data.store import write_dataset
 from gnsx.data.trajectory import Trajectory
 from gnsx.errors import DataError
 from gnsx.mpm.presets import Preset, get_preset
-from gnsx.mpm.scenes import Scene, ramp_particles, sample_rest_scene, sample_scene, water_particles
+from gnsx.mpm.scenes import (
+    Scene,
+    ramp_particles,
+    sample_dam_scene,
+    sample_rest_scene,
+    sample_scene,
+    water_particles,
+)
 from gnsx.mpm.solver import MLSMPMSolver
 
 log = logging.getLogger("gnsx")
@@ -53,6 +60,9 @@ _CACHED_FILE = "{index:06d}.npz"
 # Preset fields that do not change any trajectory: the counts only say how many to generate (trajectory i of
 # a split is the same in a 100- and a 400-trajectory dataset), so a cache serves a rerun with other counts.
 _FIELDS_NOT_IN_TRAJECTORIES = ("trajectories",)
+#: Preset fields added after caches were first written, with the value every older record was made with: a
+#: record that lacks one was generated with it, so it is no reason to refuse that cache.
+_PRESET_FIELDS_ADDED = {"dam_fraction": 0.0}
 #: The fourth seed word of :func:`rest_rng` (scene_rng's seeds have three).
 _REST_STREAM = 1
 
@@ -197,11 +207,25 @@ def is_rest_scene(preset: Preset, seed: int, split: str, index: int) -> bool:
     return bool(rest_rng(seed, split, index).uniform() < preset.rest_fraction)
 
 
+def is_dam_scene(preset: Preset, seed: int, split: str, index: int) -> bool:
+    """Whether trajectory ``index`` of ``split`` is a dam break (training split only): the rest stream's
+    draw falls in ``[rest_fraction, rest_fraction + dam_fraction)``, so dams never take a pool's place."""
+    if split != "train" or preset.dam_fraction <= 0.0:
+        return False
+    u = rest_rng(seed, split, index).uniform()
+    return bool(preset.rest_fraction <= u < preset.rest_fraction + preset.dam_fraction)
+
+
 def split_scene(preset: Preset, seed: int, split: str, index: int) -> tuple[Scene, int]:
     """The scene of trajectory ``index`` of ``split`` (dataset ``seed``) and the seed of its particle
     placement (the ``seed`` argument of :func:`simulate_scene`)."""
     rng = scene_rng(seed, split, index)
-    sample = sample_rest_scene if is_rest_scene(preset, seed, split, index) else sample_scene
+    if is_rest_scene(preset, seed, split, index):
+        sample = sample_rest_scene
+    elif is_dam_scene(preset, seed, split, index):
+        sample = sample_dam_scene
+    else:
+        sample = sample_scene
     scene = sample(rng, preset)
     return scene, int(rng.integers(2**63))
 
@@ -281,6 +305,8 @@ def _record_differences(found: dict, expected: dict) -> list[str]:
         if not isinstance(old, dict):
             differences.append(f"no {label} settings recorded")
             break
+        if section == "preset_settings":
+            old = {**_PRESET_FIELDS_ADDED, **old}
         fields = [
             f"{label} {key} {old.get(key)!r} (now {new.get(key)!r})"
             for key in sorted(set(old) | set(new))

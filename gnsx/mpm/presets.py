@@ -51,6 +51,12 @@ class Preset:
             scenes never are, so presets that differ only here share those splits. Drawn from a stream of its
             own (:func:`~gnsx.mpm.generate.rest_rng`): 0 draws nothing, and a training scene that is not a
             pool is the same as with 0.
+        dam_fraction: chance that a *training* scene is a dam break
+            (:func:`~gnsx.mpm.scenes.sample_dam_scene`: a block at rest on the floor, which collapses)
+            instead of a falling block; drawn from the same stream as ``rest_fraction`` (a pool below
+            ``rest_fraction``, a dam in the next ``dam_fraction``),
+            so adding dams keeps every pool and changes only the scenes it turns into dams. Why: pools alone
+            teach that water at rest stays at rest, and slow a dam that should break (README, Decisions).
         pool_depth_range: ``(min, max)`` depth of those pools.
         rest_block_probability: chance that such a pool also gets a block falling into it.
         default_connectivity_radius: the neighbour radius written to the metadata.
@@ -82,6 +88,7 @@ class Preset:
     ramp_max_angle: float = 0.3
     vertical_ramp_probability: float = 0.15
     rest_fraction: float = 0.0
+    dam_fraction: float = 0.0
     pool_depth_range: tuple[float, float] = (0.03, 0.25)
     rest_block_probability: float = 0.5
     ramp_spacing: float = 0.01
@@ -118,9 +125,11 @@ class Preset:
             lo, hi = getattr(self, key)
             if not 0 <= lo <= hi:
                 raise ValueError(f"preset {self.name!r}: {key} must be (min, max) with 0 <= min <= max")
-        for key in ("rest_fraction", "rest_block_probability"):
+        for key in ("rest_fraction", "dam_fraction", "rest_block_probability"):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise ValueError(f"preset {self.name!r}: {key} must be a probability in [0, 1]")
+        if self.rest_fraction + self.dam_fraction > 1.0:
+            raise ValueError(f"preset {self.name!r}: rest_fraction + dam_fraction must not exceed 1")
         self.solver_settings()  # validates the solver fields
 
     def solver_settings(self) -> SolverSettings:

@@ -281,6 +281,34 @@ def sample_rest_scene(rng: np.random.Generator, preset: Preset) -> Scene:
     )
 
 
+def sample_dam_scene(rng: np.random.Generator, preset: Preset) -> Scene:
+    """Draw a dam break: one block of :func:`sample_scene`'s sizes at rest on the floor, against the left
+    wall, the right wall or free on the floor (a third each), and ramps drawn as in :func:`sample_scene`,
+    clear of it. With nothing holding its sides the block collapses and spreads: water that starts at rest
+    and must move, the counterpart of :func:`sample_rest_scene`'s pools.
+
+    Raises:
+        ValueError: the preset's ranges make scenes impossible (a block wider than the box).
+    """
+    lo, hi = preset.bounds
+    lo_m, hi_m = lo + preset.wall_margin, hi - preset.wall_margin
+    if preset.block_width_range[1] > hi_m - lo_m or preset.block_height_range[1] > hi_m - lo_m:
+        raise ValueError(f"preset {preset.name!r}: the largest block does not fit between the walls")
+    for _ in range(_SCENE_TRIES):
+        w = rng.uniform(*preset.block_width_range)
+        h = rng.uniform(*preset.block_height_range)
+        side = int(rng.integers(3))
+        x = (lo, hi - w, rng.uniform(lo_m, hi_m - w))[side]
+        # min(): hi - w + w may round past the wall
+        blocks = [WaterBlock((x, lo), (min(x + w, hi), lo + h))]
+        ramps = _sample_ramps(rng, preset, blocks, lo_m, hi_m)
+        if ramps is not None:
+            return Scene(blocks, ramps)
+    raise ValueError(
+        f"preset {preset.name!r}: no dam scene with a ramp clear of the water in {_SCENE_TRIES} tries"
+    )
+
+
 def _launch_velocity(rng: np.random.Generator, preset: Preset) -> Point:
     """A block's initial velocity, m/s: speed uniform in ``preset.speed_range``, direction uniform."""
     speed = rng.uniform(*preset.speed_range)
