@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -66,6 +66,26 @@ pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e
 		train.val_every_n_steps=2000 train.val_max_trajectories=4 train.checkpoint_every_n_steps=500 \
 		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_DIR) $(ARGS)
 	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
+
+PRETRAIN_DAM_DIR ?= outputs/pretrain/small_dam
+pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on pools and dam breaks; ~25 min): exported to outputs/pretrain/small_dam/export, not shipped (README, Decisions)
+	$(PY) train.py data=small_400 train=pretrain train.max_steps=15000 train.val_every_n_steps=5000 \
+		train.permanent_every_n_steps=1000 evaluate.enabled=false evaluate.render=false \
+		hydra.run.dir=$(PRETRAIN_DAM_DIR)/base $(ARGS) \
+		$$([ -f $(PRETRAIN_DAM_DIR)/base/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DAM_DIR)/base)
+	$(PY) train.py data=small_rest_dam train=finetune evaluate.render=false hydra.run.dir=$(PRETRAIN_DAM_DIR)/finetune $(ARGS) \
+		$$([ -f $(PRETRAIN_DAM_DIR)/finetune/checkpoints/last.ckpt ] \
+			&& echo train.ckpt_path=$(PRETRAIN_DAM_DIR)/finetune train.init_weights=null \
+			|| echo train.init_weights=$(PRETRAIN_DAM_DIR)/base/checkpoints/permanent/step00010000.ckpt)
+	$(PY) -m gnsx.pretrained $(PRETRAIN_DAM_DIR)/finetune $(PRETRAIN_DAM_DIR)/export --select-best-val
+
+WATERRAMPS_EVAL ?= data/waterramps_eval
+waterramps-eval: install ## Score a waterramps-preset model (CKPT=run dir or .ckpt) on 16 test trajectories made here (~3 min once) against the baseline
+	@[ -n "$(CKPT)" ] || { echo "set CKPT=<run dir or .ckpt of a waterramps-preset model> (scripts/gpu_waterramps.sh trains one)"; exit 2; }
+	@[ -f $(WATERRAMPS_EVAL)/metadata.json ] || $(PY) -m gnsx.data generate --preset waterramps \
+		--out $(WATERRAMPS_EVAL) --seed 0 --train 2 --valid 4 --test 16
+	$(PY) evaluate.py checkpoint=$(CKPT) data.root=$(WATERRAMPS_EVAL) split=test metrics.timing_repeats=0 \
+		metrics.emd_every=50 $(ARGS)
 
 bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. ARGS='--batch-size 2 8 --threads 2 --precision 32-true bf16-mixed'
 	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)

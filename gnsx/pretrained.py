@@ -201,6 +201,33 @@ def score_on_test_split(checkpoint: Path, data_root: Path, work_dir: Path) -> di
     }
 
 
+def scores_from_results(results: Path, checkpoint: Path) -> dict:
+    """The test-split metrics of ``checkpoint`` from an ``evaluate.py`` ``results.json`` that scored it, in
+    the layout of :func:`score_on_test_split` (plus ``test_data_root``), so that an export can reuse a test
+    evaluation already run (a waterramps-preset model takes ~100 s of CPU per test trajectory).
+
+    Raises:
+        DataError: the file is not an evaluation of the test split, or scored no model from ``checkpoint``.
+    """
+    try:
+        payload = json.loads(results.read_text())
+    except (OSError, ValueError) as error:
+        raise DataError(str(results), f"cannot read evaluate.py results: {error}") from None
+    if payload.get("split") != "test":
+        raise DataError(str(results), f"scored split {payload.get('split')!r}, not 'test'")
+    for model in payload.get("models", []):
+        if Path(model.get("checkpoint", "")).resolve() == checkpoint.resolve():
+            return {
+                "parameters": model["parameters"],
+                "test": model["summary"],
+                "rows": model["rows"],
+                "rules": payload["rules"],
+                "test_data_root": payload.get("data_root"),
+            }
+    scored = ", ".join(str(m.get("checkpoint")) for m in payload.get("models", [])) or "none"
+    raise DataError(str(results), f"scored no model from {checkpoint} (it scored: {scored})")
+
+
 def export(
     run_dir: Path,
     dest: Path,
@@ -209,6 +236,8 @@ def export(
     select_by_scores: list[Path] | None = None,
     rest_gate: bool = True,
     rest_check_of: Callable[[Path], dict] = rest_checks_of,
+    data_root: Path | None = None,
+    test_results: Path | None = None,
 ) -> dict:
     """Write the shipped-weights folder for ``run_dir``: its ``checkpoints/last.ckpt``, the given checkpoint,
     the saved checkpoint with the lowest logged validation rollout MSE (``select_best_val``), or the one
@@ -217,7 +246,10 @@ def export(
     drifts past issue 11's target or whose rest hold stops a dam from breaking (:func:`first_at_rest`,
     ``rest_check_of``); the figures go into ``results.json``.
     Any checkpoint other than the last is evaluated on the test split here, so ``results.json`` always
-    describes the shipped weights."""
+    describes the shipped weights: on ``data_root`` (default: the run's ``data.root``; give it for a run
+    trained on another machine, whose data folder is not here; its ``metadata.json`` is copied), or taken
+    from ``test_results``, an ``evaluate.py`` results file that scored this checkpoint on the test split
+    (:func:`scores_from_results`)."""
     if not run_dir.is_dir():  # before the rest gate's minutes of rollouts
         raise DataError(str(run_dir), "no such run directory")
     selected = None
@@ -266,7 +298,7 @@ def export(
     staging = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
     staging.chmod(0o755)  # mkdtemp makes it private; the shipped folder is an ordinary one
     try:
-        info = _write_folder(run_dir, staging, checkpoint, last, selected)
+        info = _write_folder(run_dir, staging, checkpoint, last, selected, data_root, test_results)
         _replace_folder(staging, dest)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -284,15 +316,24 @@ def _replace_folder(new: Path, dest: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
-def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selected: dict | None) -> dict:
+def _write_folder(
+    run_dir: Path,
+    dest: Path,
+    checkpoint: Path,
+    last: Path,
+    selected: dict | None,
+    data_root: Path | None = None,
+    test_results: Path | None = None,
+) -> dict:
     """The files of :func:`export`, written into the (empty) folder ``dest``."""
     info = strip_checkpoint(checkpoint, dest / "model.ckpt")
     config = run_dir / ".hydra" / "config.yaml"
-    data_root = _data_root(config) if config.is_file() else None
+    if data_root is None and config.is_file():
+        data_root = _data_root(config)
     if config.is_file():
         shutil.copy(config, dest / "config.yaml")
-        if data_root is not None and (data_root / "metadata.json").is_file():
-            shutil.copy(data_root / "metadata.json", dest / "metadata.json")
+    if data_root is not None and (data_root / "metadata.json").is_file():
+        shutil.copy(data_root / "metadata.json", dest / "metadata.json")
     rows = merge_curves(run_dir)
     if rows:
         fields = sorted({k for r in rows for k in r})
@@ -308,10 +349,13 @@ def _write_folder(run_dir: Path, dest: Path, checkpoint: Path, last: Path, selec
         # The run's own test numbers describe its last checkpoint: keep them aside, score the shipped one.
         payload["last_checkpoint_test"] = payload.pop("test", None)
         payload.pop("rows", None)
-        if data_root is None:
+        if test_results is not None:
+            payload.update(scores_from_results(test_results, checkpoint))
+        elif data_root is None:
             raise FileNotFoundError(f"{config}: no data.root to evaluate {checkpoint} on")
-        with tempfile.TemporaryDirectory() as work:
-            payload.update(score_on_test_split(checkpoint, data_root, Path(work)))
+        else:
+            with tempfile.TemporaryDirectory() as work:
+                payload.update(score_on_test_split(checkpoint, data_root, Path(work)))
     payload["checkpoint"] = info
     if selected:
         payload["checkpoint"]["selected"] = selected
@@ -349,6 +393,19 @@ def _main(argv: list[str]) -> int:
         help="with --select-*: keep checkpoints whose pool at rest drifts past 0.5 cm per 100 frames "
         "or whose corner dam the rest hold freezes",
     )
+    parser.add_argument(
+        "--data-root",
+        type=Path,
+        default=None,
+        help="dataset to score the checkpoint on and copy metadata.json from (default: the run's data.root)",
+    )
+    parser.add_argument(
+        "--test-results",
+        type=Path,
+        default=None,
+        metavar="RESULTS_JSON",
+        help="evaluate.py results of this checkpoint on the test split, used instead of scoring it again",
+    )
     parser.add_argument("--threads", default="auto", help="torch threads for the rest gate (default: auto)")
     args = parser.parse_args(argv)
     check_output_path(args.dest, "DEST")
@@ -360,6 +417,8 @@ def _main(argv: list[str]) -> int:
         args.select_best_val,
         args.select_by_scores,
         rest_gate=not args.no_rest_gate,
+        data_root=args.data_root,
+        test_results=args.test_results,
     )
     print(f"exported step {info['global_step']} of {args.run_dir} to {args.dest}")
     return 0

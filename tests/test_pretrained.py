@@ -154,6 +154,51 @@ def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "shipped"]
 
 
+def test_export_reuses_a_test_evaluation_of_the_same_checkpoint_only(tmp_path):
+    """``--test-results``: an evaluate.py file that scored the exported checkpoint on the test split is used
+    as is; one of another checkpoint, or of another split, is refused and nothing is written."""
+    from gnsx.errors import DataError
+    from gnsx.pretrained import export
+
+    run = tmp_path / "run"
+    (run / "checkpoints" / "permanent").mkdir(parents=True)
+    header = {"state_dict": {}, "hyper_parameters": {"model": {}}}
+    torch.save({**header, "global_step": 5}, run / "checkpoints" / "last.ckpt")
+    chosen = run / "checkpoints" / "permanent" / "step00000004.ckpt"
+    torch.save({**header, "global_step": 4}, chosen)
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "metadata.json").write_text('{"bounds": [[0, 1], [0, 1]]}')
+
+    def results_of(name: str, checkpoint: Path, split: str = "test") -> Path:
+        model = {
+            "checkpoint": str(checkpoint),
+            "parameters": 7,
+            "summary": {"rollout_mse": 0.5},
+            "rows": [{}],
+        }
+        path = tmp_path / name
+        path.write_text(
+            json.dumps({"split": split, "data_root": "x", "rules": {"hold_rest": True}, "models": [model]})
+        )
+        return path
+
+    dest = tmp_path / "shipped"
+    for bad, match in (
+        (results_of("other.json", run / "checkpoints" / "last.ckpt"), "scored no model from"),
+        (results_of("valid.json", chosen, split="valid"), "not 'test'"),
+    ):
+        with pytest.raises(DataError, match=match):
+            export(run, dest, checkpoint=chosen, test_results=bad, data_root=data)
+        assert not dest.exists()
+    info = export(run, dest, checkpoint=chosen, test_results=results_of("ok.json", chosen), data_root=data)
+    assert info["global_step"] == 4
+    written = json.loads((dest / "results.json").read_text())
+    assert written["test"] == {"rollout_mse": 0.5} and written["parameters"] == 7
+    assert written["rules"] == {"hold_rest": True} and written["test_data_root"] == "x"
+    assert (dest / "metadata.json").read_text() == '{"bounds": [[0, 1], [0, 1]]}'
+
+
 def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     """The shipping rule: the lowest validation error among checkpoints that keep a pool at rest (the
     pretrain's step 10k scored best and drifted 4.5 cm per 100 frames; README, Decisions)."""
