@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.health import rollout_health
 from gnsx.metrics import area_ratio
@@ -71,6 +71,10 @@ DAM_FRAMES = 60
 #: the speed without it, and at least :data:`DAM_MIN_SPEED` m/s (the MPM's: 2.2 m/s over 250 frames).
 DAM_SPEED_SHARE = 0.7
 DAM_MIN_SPEED = 0.5
+#: Issue 9: a block in free flight accelerates at g within this share (:func:`free_fall_error`).
+FREE_FALL_TOLERANCE = 0.05
+#: The free-fall cases: (height of the block's centre above the floor, m; downward speed, m/s).
+FREE_FALL_CASES = ((0.45, 0.0), (0.45, 1.0), (0.6, 0.0), (0.6, 1.0))
 
 
 @dataclass(frozen=True)
@@ -211,6 +215,41 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
         steps = np.linalg.norm(positions[1:] - positions[:-1], axis=-1)[:, water]
         speeds.append(float(steps.max()) / dt if np.isfinite(steps).all() else math.inf)
     return speeds[0], speeds[1]
+
+
+@torch.inference_mode()
+def free_fall_acceleration(
+    simulator: LearnedSimulator, height: float, speed: float, spacing: float = 0.015625, dt: float = 0.0025
+) -> float:
+    """Median predicted vertical acceleration (m/s^2) of a 12 x 12 jittered block of water particles
+    ``spacing`` apart (default: the small preset's), falling at ``speed`` m/s, centred ``height`` m above the
+    floor of the unit box (x = 0.5: far from the side walls, no ramp near); ``dt`` is the frame interval, s.
+    The model alone, one step, no rules: what the pairwise decoder's forces inside the block do to its median
+    particle (its mean falls at g whatever the weights)."""
+    generator = torch.Generator().manual_seed(0)
+    grid = torch.stack(torch.meshgrid(torch.arange(12.0), torch.arange(12.0), indexing="ij"), -1).reshape(
+        -1, 2
+    )
+    block = (grid - grid.mean(0)) * spacing + torch.tensor([0.5, 0.1 + height])
+    block = block + (torch.rand(block.shape, generator=generator) - 0.5) * 0.6 * spacing
+    step = torch.tensor([0.0, -speed * dt])  # displacement per frame
+    frames = [block - k * step for k in range(simulator.history, -1, -1)]  # oldest first
+    sequence = torch.stack(frames, dim=1).to(simulator.acc_std)
+    types = torch.full((len(block),), WATER_PARTICLE_ID, device=sequence.device)
+    normalized = simulator(sequence, types)
+    acceleration = normalized * simulator.acc_std + simulator.acc_mean  # per frame^2
+    return float((acceleration[:, 1] / dt**2).median())
+
+
+def free_fall_error(simulator: LearnedSimulator, spacing: float = 0.015625, gravity: float = 9.8) -> float:
+    """Largest relative error of :func:`free_fall_acceleration` against ``-gravity`` over
+    :data:`FREE_FALL_CASES` (under :data:`FREE_FALL_TOLERANCE` to pass; ``inf`` when not finite)."""
+    errors = [
+        abs(free_fall_acceleration(simulator, height, speed, spacing) / -gravity - 1.0)
+        for height, speed in FREE_FALL_CASES
+    ]
+    worst = max(errors)
+    return worst if math.isfinite(worst) else math.inf
 
 
 def dam_breaks(held: float, free: float) -> bool:

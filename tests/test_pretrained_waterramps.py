@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_pretrained import _free_fall_acceleration
 
 from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
+from gnsx.hardcases import FREE_FALL_CASES, free_fall_acceleration
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import Preset
 from gnsx.scoring import baseline_errors, onestep_mse
@@ -69,7 +69,6 @@ def test_falls_at_g():
     """A block in free flight accelerates at g within 5% (the shipped small weights' test, at this preset's
     particle spacing)."""
     simulator = load_simulator(SHIPPED / "model.ckpt")
-    for height in (0.45, 0.6):
-        for speed in (0.0, 1.0):
-            acceleration = _free_fall_acceleration(simulator, height, speed, spacing=0.009)
-            assert acceleration == pytest.approx(-9.8, rel=0.05)
+    for height, speed in FREE_FALL_CASES:
+        acceleration = free_fall_acceleration(simulator, height, speed, spacing=0.009)
+        assert acceleration == pytest.approx(-9.8, rel=0.05)
