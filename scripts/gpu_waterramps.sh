@@ -9,6 +9,8 @@
 #   carried: .whl  hydra-core, omegaconf, antlr4 and tfrecord (pip wheel), crc32c wheels for the image's Python 3.12
 #            (scripts/gpu_pretrain.sh says how; POT is not needed: nothing here scores EMD)
 #   DRY=1 OUT=/tmp/out bash scripts/gpu_waterramps.sh   # the same steps on this CPU, tiny, to catch errors
+#   (2026-12-04 it ran with PYTHONPATH=<a folder whose sitecustomize.py makes `import wandb`, `import ot` and
+#   `import imageio_ffmpeg` fail>, as they do on the image, and both stages passed before the lease.)
 # STAGE=finetune (a second call on the still-warm machine, as on 2026-12-04): a fresh schedule from the first
 # stage's last.ckpt on the same data, LR 5e-4 decayed to 1e-5 over FT_BUDGET (3 min); writes ft_last.ckpt,
 # ft_metrics.csv, ft_results.json.
