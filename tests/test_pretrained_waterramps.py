@@ -67,8 +67,11 @@ def test_recorded_scores_reproduce_on_a_regenerated_test_trajectory(shipped):
 
 def test_falls_at_g():
     """A block in free flight accelerates at g within 5% (the shipped small weights' test, at this preset's
-    particle spacing)."""
+    particle spacing and frame interval)."""
     simulator = load_simulator(SHIPPED / "model.ckpt")
+    preset = Preset.from_dict(Metadata.load(SHIPPED / "metadata.json").extra["gnsx"]["preset_settings"])
     for height, speed in FREE_FALL_CASES:
-        acceleration = free_fall_acceleration(simulator, height, speed, spacing=0.009)
+        acceleration = free_fall_acceleration(
+            simulator, height, speed, spacing=preset.particle_spacing, dt=preset.frame_dt
+        )
         assert acceleration == pytest.approx(-9.8, rel=0.05)
