@@ -58,14 +58,14 @@ PRETRAIN_DIR ?= outputs/pretrain/small
 pretrain: install ## Train shipped weights on CPU (400 training scenes, 100k steps, hours; rerun to resume), then ship them
 	$(PY) train.py data=small_400 train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(ARGS) \
 		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
-	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
+	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small --select-best-val
 
 pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e-3, 4.5 min fitted schedule), then ship them
 	$(PY) train.py data=small_400 data.batch_size=32 data.num_workers=4 trainer=gpu train=pretrain \
 		train.max_steps=40000 train.max_time=00:00:04:30 train.fit_to_max_time=true train.lr_init=2e-3 \
 		train.val_every_n_steps=2000 train.val_max_trajectories=4 train.checkpoint_every_n_steps=500 \
 		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_DIR) $(ARGS)
-	$(PY) -m gnsx.pretrained $(PRETRAIN_DIR) pretrained/small --select-best-val
+	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small --select-best-val
 
 PRETRAIN_DAM_DIR ?= outputs/pretrain/small_dam
 pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on pools and dam breaks; ~25 min): exported to outputs/pretrain/small_dam/export, not shipped (README, Decisions)
@@ -77,7 +77,7 @@ pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on p
 		$$([ -f $(PRETRAIN_DAM_DIR)/finetune/checkpoints/last.ckpt ] \
 			&& echo train.ckpt_path=$(PRETRAIN_DAM_DIR)/finetune train.init_weights=null \
 			|| echo train.init_weights=$(PRETRAIN_DAM_DIR)/base/checkpoints/permanent/step00010000.ckpt)
-	$(PY) -m gnsx.pretrained $(PRETRAIN_DAM_DIR)/finetune $(PRETRAIN_DAM_DIR)/export --select-best-val
+	$(PY) -m gnsx.training.export $(PRETRAIN_DAM_DIR)/finetune $(PRETRAIN_DAM_DIR)/export --select-best-val
 
 WATERRAMPS_EVAL ?= data/waterramps_eval
 waterramps-eval: install ## Score a waterramps-preset model (CKPT=run dir or .ckpt) on 16 test trajectories made here (~3 min once) against the baseline
@@ -89,31 +89,31 @@ waterramps-eval: install ## Score a waterramps-preset model (CKPT=run dir or .ck
 
 bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. ARGS='--batch-size 2 8 --threads 2 --precision 32-true bf16-mixed'
 	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)
-	$(PY) -m gnsx.throughput --data $(DATA) $(ARGS)
+	$(PY) -m gnsx.perf.throughput --data $(DATA) $(ARGS)
 
 SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
 fig9-mini: install ## Figure 9's 16 cells on the small preset, 2 parallel CPU jobs (~35-50 min), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=multirun/fig9_mini/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.report multirun/fig9_mini/$(SWEEP_STAMP)
+	$(PY) -m gnsx.evaluation.report multirun/fig9_mini/$(SWEEP_STAMP)
 
 radius-mini: install ## Connection-radius sweep (5 radii, 64/5) on the small preset (~20-30 min), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
 	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=multirun/radius_mini/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.report multirun/radius_mini/$(SWEEP_STAMP)
+	$(PY) -m gnsx.evaluation.report multirun/radius_mini/$(SWEEP_STAMP)
 
 fig9: install ## Full figure 9 (WaterRamps, paper schedule), e.g. ARGS='hydra/launcher=slurm hydra.launcher.partition=gpu'
 	$(PY) train.py -m --config-dir sweeps --config-name fig9 hydra.sweep.dir=multirun/fig9/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.report multirun/fig9/$(SWEEP_STAMP)
+	$(PY) -m gnsx.evaluation.report multirun/fig9/$(SWEEP_STAMP)
 
 radius: install ## Full radius sweep (WaterRamps), same ARGS as fig9
 	$(PY) train.py -m --config-dir sweeps --config-name radius hydra.sweep.dir=multirun/radius/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.report multirun/radius/$(SWEEP_STAMP)
+	$(PY) -m gnsx.evaluation.report multirun/radius/$(SWEEP_STAMP)
 
 report: install ## Report of a sweep: make report SWEEP=multirun/<sweep>/<date_time> (default: the newest)
 	@[ -n "$(SWEEP)" ] || { echo "no multirun directory: make report SWEEP=multirun/<sweep>/<date_time>"; exit 1; }
-	$(PY) -m gnsx.report $(SWEEP)
+	$(PY) -m gnsx.evaluation.report $(SWEEP)
 
 clean: ## Remove generated data and run outputs (keeps .venv)
 	rm -rf outputs multirun wandb .pytest_cache
@@ -128,16 +128,16 @@ simulate: install ## Roll a model out on a scene: make simulate CKPT=<run dir|.c
 
 sensitivity: install ## The ground truth's own predictability: MPM reruns of the test split from starts moved by 1e-6..1e-3 m, scored like a model (~3 min)
 	test -d $(DATA) || $(MAKE) data
-	$(PY) -m gnsx.mpm.sensitivity --data $(DATA) --split test --deltas 0 1e-6 1e-5 1e-4 1e-3 --out outputs/sensitivity $(ARGS)
+	$(PY) -m gnsx.evaluation.sensitivity --data $(DATA) --split test --deltas 0 1e-6 1e-5 1e-4 1e-3 --out outputs/sensitivity $(ARGS)
 
 hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scenes, 10x horizon): MPM vs raw vs held model
-	$(PY) -m gnsx.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)
+	$(PY) -m gnsx.evaluation.hardcases --checkpoint $(or $(CKPT),pretrained/small) --out outputs/hardcases/$(SWEEP_STAMP) $(ARGS)
 
 bench: install ## Scaling benchmark: ms/frame, memory, GFLOP/s vs particles (1k-100k), simplified / simplified_pairwise / original, inference + training; JSON + plot in outputs/bench (ARGS='--threads 2', '--device cuda', '--particles 2300': one size)
-	$(PY) -m gnsx.benchmark $(ARGS)
+	$(PY) -m gnsx.perf.benchmark $(ARGS)
 
 bench-cull: install ## ms/frame with and without exact culling, 5 scenes at WaterRamps size and 10x (ARGS='--threads 2 --models simplified original')
-	$(PY) -m gnsx.benchmark --cull $(ARGS)
+	$(PY) -m gnsx.perf.benchmark --cull $(ARGS)
 
 # The perceptual study (issue 14, the paper's figure 10): docs/study.md.
 STUDY ?= day-one

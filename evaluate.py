@@ -19,8 +19,8 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from gnsx.cli import hydra_task, run_hydra
-from gnsx.config_checks import check_evaluate_config
+from gnsx.core.cli import hydra_task, run_hydra
+from gnsx.training.config_checks import check_evaluate_config
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
@@ -28,10 +28,10 @@ from gnsx.config_checks import check_evaluate_config
 def main(cfg: DictConfig) -> float:
     check_evaluate_config(cfg)
     # Imported here: a bad override fails in a second, without loading torch.
-    from gnsx.evaluate import evaluate_checkpoints
+    from gnsx.core.threads import apply_threads
+    from gnsx.evaluation.evaluate import evaluate_checkpoints
     from gnsx.model.rules import Rules
-    from gnsx.pipeline import build_loggers
-    from gnsx.threads import apply_threads
+    from gnsx.training.pipeline import build_loggers
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     apply_threads(cfg.threads)

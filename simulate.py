@@ -7,11 +7,11 @@ Hydra (conf/simulate.yaml).
 
 Writes into the Hydra run directory (outputs/simulate/<date>/<time>/): scene.yaml, rollout.npz, rollout.gif,
 strip.png and, with mpm=true, comparison.gif (MPM | model), rollout.pkl (DeepMind's format) and errors.json.
-See gnsx/scene_rollout.py for the scene format and how the model's first frames are made. Bad input (a scene
+See gnsx/evaluation/scene_rollout.py for the scene format and how the model's first frames are made. Bad input (a scene
 with an unknown key, a model of another preset than ``preset``, a negative seed, a file that is not a
 checkpoint) prints one line and exits 2; ``--debug`` shows the traceback. The rollout is held by the scene's
 walls and ramps (gnsx/model/boundary.py); one that still blows up (NaN, or a particle beyond the blow-up speed
-of gnsx/health.py) prints a warning, writes its files and exits 3.
+of gnsx/evaluation/health.py) prints a warning, writes its files and exits 3.
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx.cli import hydra_task, run_hydra
-from gnsx.config_checks import check_simulate_config
-from gnsx.errors import ConfigError
+from gnsx.core.cli import hydra_task, run_hydra
+from gnsx.core.errors import ConfigError
+from gnsx.training.config_checks import check_simulate_config
 
-#: Exit status of a rollout that blew up (NaN, or a particle beyond the blow-up speed; gnsx/health.py).
+#: Exit status of a rollout that blew up (NaN, or a particle beyond the blow-up speed; gnsx/evaluation/health.py).
 EXIT_BLEW_UP = 3
 
 
@@ -37,11 +37,11 @@ EXIT_BLEW_UP = 3
 def main(cfg: DictConfig) -> None:
     check_simulate_config(cfg)
     # Imported here: a bad override fails in a second, without loading torch.
-    from gnsx.checkpoints import check_fits, checkpoint_path, load_simulator, model_label
+    from gnsx.core.threads import apply_threads
+    from gnsx.evaluation.scene_rollout import load_scene, simulate_to_folder
+    from gnsx.model.checkpoint import check_fits, checkpoint_path, load_simulator, model_label
     from gnsx.mpm.presets import PRESETS, get_preset
     from gnsx.mpm.scenes import Scene
-    from gnsx.scene_rollout import load_scene, simulate_to_folder
-    from gnsx.threads import apply_threads
 
     try:
         preset = get_preset(cfg.preset)

@@ -16,13 +16,15 @@ from __future__ import annotations
 import hydra
 from omegaconf import DictConfig
 
-from gnsx.cli import hydra_task, run_hydra
+from gnsx.core.cli import hydra_task, run_hydra
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 @hydra_task
 def main(cfg: DictConfig) -> float | None:
-    from gnsx.pipeline import run_training  # imported here: a bad override fails in a second, without torch
+    from gnsx.training.pipeline import (
+        run_training,  # imported here: a bad override fails in a second, without torch
+    )
 
     return run_training(cfg)
 

@@ -2,10 +2,10 @@
 
     .venv/bin/python scripts/bf16_step.py 2300 simplified_pairwise
 
-A batch of two scenes of the scaling benchmark (``gnsx.scaling.training_batch``, WaterRamps spacing), an
-untrained model of ``gnsx.benchmark.MODELS``, Adam; two warm-up steps each, then ``rounds`` rounds of one
+A batch of two scenes of the scaling benchmark (``gnsx.perf.scaling.training_batch``, WaterRamps spacing), an
+untrained model of ``gnsx.model.registry.MODELS``, Adam; two warm-up steps each, then ``rounds`` rounds of one
 fp32 step and one bf16 step, 2 threads. Prints the median ms per step of each and their ratio. The step is
-the simulator's noisy training pair and an MSE loss, as ``gnsx.scaling.training_step`` without Lightning.
+the simulator's noisy training pair and an MSE loss, as ``gnsx.perf.scaling.training_step`` without Lightning.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import time
 
 import torch
 
-from gnsx.scaling import WATERRAMPS, build_system, training_batch
+from gnsx.perf.scaling import WATERRAMPS, build_system, training_batch
 
 
 def main(num_particles: int, model: str, rounds: int = 8) -> None:

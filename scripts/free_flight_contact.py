@@ -21,10 +21,10 @@ import sys
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.store import load_metadata, open_split
+from gnsx.evaluation.scoring import gravity_per_frame
 from gnsx.model.freeflight import LOOKAHEAD, REACH, TOLERANCE, obstacle_gaps, rigid_clusters
-from gnsx.scoring import gravity_per_frame
 
 #: Largest deviation from g (data units per frame^2) that still counts as free fall.
 FREE_FALL = 1e-6

@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/free_flight_cost.py 2300 400
 
-For each particle count: a block of the scaling benchmark's scene (``gnsx.scaling.scaling_scene``, inside the
+For each particle count: a block of the scaling benchmark's scene (``gnsx.perf.scaling.scaling_scene``, inside the
 shipped model's box), seven rounds of a 20-frame rollout with every rule and with all but free flight,
 alternating, 2 threads; prints the median ms per frame and the range of each.
 """
@@ -15,11 +15,11 @@ import time
 
 import torch
 
-from gnsx.allocator import retain_freed_memory
-from gnsx.checkpoints import load_simulator
+from gnsx.core.allocator import retain_freed_memory
+from gnsx.model.checkpoint import load_simulator
 from gnsx.model.rollout import rollout
 from gnsx.model.rules import Rules
-from gnsx.scaling import scaling_scene
+from gnsx.perf.scaling import scaling_scene
 
 
 def main(sizes: list[int], rounds: int = 7, frames: int = 20) -> None:

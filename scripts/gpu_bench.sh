@@ -4,7 +4,7 @@
 # Writes scaling_cuda.json, scaling_cuda.png and scaling_cuda.txt to $OUT (3 files). Sizes that do not fit
 # --max-seconds (per measurement) or the GPU's memory are skipped with their reason; a few minutes in all.
 # Run alone, or from scripts/gpu_pretrain.sh (which calls it first unless SKIP_SCALING=1). Needs, carried, the
-# .whl folder gpu_pretrain.sh describes (gnsx.system imports the metrics, which need POT).
+# .whl folder gpu_pretrain.sh describes (gnsx.training.system imports the metrics, which need POT).
 #   DRY=1 OUT=/tmp/out bash scripts/gpu_bench.sh     # the same steps on this CPU, tiny, to catch errors
 set -euo pipefail
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg
@@ -22,4 +22,4 @@ elif [ -z "${GNSX_WHEELS_INSTALLED:-}" ]; then
 fi
 export PYTHONPATH=${PYTHONPATH:+$PYTHONPATH:}$PWD
 tag=$([ "${DRY:-0}" = 1 ] && echo cpu || echo cuda)
-$PY -m gnsx.benchmark "${ARGS[@]}" --json "$OUT/scaling_$tag.json" 2>&1 | tee "$OUT/scaling_$tag.txt"
+$PY -m gnsx.perf.benchmark "${ARGS[@]}" --json "$OUT/scaling_$tag.json" 2>&1 | tee "$OUT/scaling_$tag.txt"

@@ -42,11 +42,11 @@ save() {
 }
 trap save EXIT
 
-# Throughput, old then new code, same loop and data (gnsx/throughput.py imports only APIs both have).
+# Throughput, old then new code, same loop and data (gnsx/perf/throughput.py imports only APIs both have).
 [ "${SKIP_BENCH:-0}" = 1 ] || for batch in 2 "$BATCH"; do
-  PYTHONPATH=$PWD/.old:$PYTHONPATH $PY gnsx/throughput.py --data "$DATA" --device "$DEVICE" --batch-size "$batch" \
+  PYTHONPATH=$PWD/.old:$PYTHONPATH $PY gnsx/perf/throughput.py --data "$DATA" --device "$DEVICE" --batch-size "$batch" \
     --steps "$STEPS" --warmup 10 --json "/tmp/old_$batch.json" 2>&1 | grep -E "^(model|simplified)" | sed 's/^/before: /'
-  $PY -m gnsx.throughput --data "$DATA" --device "$DEVICE" --batch-size "$batch" --steps "$STEPS" --warmup 10 \
+  $PY -m gnsx.perf.throughput --data "$DATA" --device "$DEVICE" --batch-size "$batch" --steps "$STEPS" --warmup 10 \
     --json "/tmp/new_$batch.json" 2>&1 | grep -E "^(model|simplified)" | sed 's/^/after:  /'
 done 2>&1 | tee -a "$OUT/gpu.txt"
 

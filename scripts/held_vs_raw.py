@@ -11,12 +11,12 @@ from pathlib import Path
 
 import torch
 
-from gnsx.checkpoints import load_simulator
+from gnsx.data.datamodule import TrajectoryDataset
 from gnsx.data.metadata import Metadata
 from gnsx.data.store import SplitReader
-from gnsx.datamodule import TrajectoryDataset
-from gnsx.scoring import evaluate_simulator, format_table, json_ready
-from gnsx.spread import compare, format_comparison
+from gnsx.evaluation.scoring import evaluate_simulator, format_table, json_ready
+from gnsx.evaluation.spread import compare, format_comparison
+from gnsx.model.checkpoint import load_simulator
 
 
 def main() -> None:

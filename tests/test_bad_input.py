@@ -26,7 +26,7 @@ from omegaconf import OmegaConf, open_dict
 from test_evaluate import TINY as TINY_MODEL
 from test_evaluate import save_tiny_checkpoint
 
-from gnsx.cli import run_main, user_message
+from gnsx.core.cli import run_main, user_message
 from gnsx.data.store import load_metadata
 from gnsx.data.trajectory import Trajectory
 
@@ -88,7 +88,7 @@ def _hydra_task(script: str, config: str, overrides: list[str], tmp_path: Path, 
 def _cli(main, argv: list[str], tmp_path: Path, capsys, case: str, progress: bool = False, **kwargs) -> str:
     try:
         code = run_main(main, argv, **kwargs)
-    except SystemExit as exit_:  # argparse's usage errors exit (with one line, gnsx.cli.ArgumentParser)
+    except SystemExit as exit_:  # argparse's usage errors exit (with one line, gnsx.core.cli.ArgumentParser)
         code = exit_.code
     assert code == 2
     return _one_line(capsys.readouterr().err, tmp_path, case, progress)
@@ -594,7 +594,9 @@ def test_simulate(case, overrides, expected, bad_checkpoints, tmp_path, capsys):
 
 # -- the other CLIs ------------------------------------------------------------------------------------------
 def test_pretrained_throughput_report_benchmark(bad_checkpoints, tmp_path, capsys):
-    from gnsx import benchmark, pretrained, report, throughput
+    from gnsx.evaluation import report
+    from gnsx.perf import benchmark, throughput
+    from gnsx.training import export as pretrained
 
     (tmp_path / "file").write_text("a file")
     message = _cli(
@@ -629,7 +631,7 @@ def test_pretrained_throughput_report_benchmark(bad_checkpoints, tmp_path, capsy
         "throughput: --batch-size 0",
     )
     assert message == "error: --batch-size=0: must be >= 1"
-    # gnsx.report and gnsx.benchmark through gnsx.cli.run_main with their user errors (their __main__ blocks
+    # gnsx.evaluation.report and gnsx.perf.benchmark through gnsx.core.cli.run_main with their user errors (their __main__ blocks
     # should call it so: see docs/robustness.md).
     message = _cli(
         report.main,

@@ -13,13 +13,13 @@ import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from gnsx import benchmark
-from gnsx.benchmark import MODELS, WATERRAMPS, build_model
-from gnsx.constants import WATER_PARTICLE_ID
-from gnsx.flops import forward_flops, training_flops
-from gnsx.memtrack import TensorMemoryTracker, hold_still, rollout_growth, rollout_memory
+from gnsx.core.constants import WATER_PARTICLE_ID
 from gnsx.model.neighbors import radius_graph
-from gnsx.scaling import (
+from gnsx.perf import benchmark
+from gnsx.perf.benchmark import MODELS, WATERRAMPS, build_model
+from gnsx.perf.flops import forward_flops, training_flops
+from gnsx.perf.memtrack import TensorMemoryTracker, hold_still, rollout_growth, rollout_memory
+from gnsx.perf.scaling import (
     build_system,
     linearity,
     plan_measurement,
@@ -216,7 +216,7 @@ def test_cli_rejects_bad_sizes():
 _RSS_AFTER_FREE = """
 import sys
 import torch
-from gnsx.allocator import retain_freed_memory
+from gnsx.core.allocator import retain_freed_memory
 
 def rss_mb():
     for line in open("/proc/self/status"):
@@ -233,7 +233,7 @@ print(applied, rss_mb() - before)
 
 @pytest.mark.parametrize("defaults", [False, True])
 def test_freed_large_tensors_stay_in_the_process(defaults):
-    """gnsx.allocator: a freed 64 MB tensor stays resident (the next frame reuses it without page faults);
+    """gnsx.core.allocator: a freed 64 MB tensor stays resident (the next frame reuses it without page faults);
     with GNSX_GLIBC_MALLOC_DEFAULTS=1 glibc unmaps it as usual."""
     import os
     import subprocess

@@ -5,7 +5,7 @@ import pytest
 import torch
 from test_simulator import METADATA, make_simulator
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import physics_free_baseline, rollout
 from gnsx.model.boundary import Boundary
 

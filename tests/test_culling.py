@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx.benchmark import MODELS
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import EncodeProcessDecode, LearnedSimulator, rollout
 from gnsx.model.culling import hop_distance, particles_in_reach, plan_culling
+from gnsx.perf.benchmark import MODELS
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "pretrained" / "small" / "model.ckpt"
@@ -44,7 +44,7 @@ def make(name: str, seed: int = 0, **overrides) -> LearnedSimulator:
 
 @pytest.fixture(scope="module")
 def shipped() -> LearnedSimulator:
-    from gnsx.checkpoints import load_simulator
+    from gnsx.model.checkpoint import load_simulator
 
     return load_simulator(SHIPPED)
 
@@ -222,9 +222,9 @@ def test_random_scenes_random_weights(name, seed):
 
 @pytest.mark.parametrize("scene_file", sorted((ROOT / "scenes").glob("*.yaml")), ids=lambda p: p.stem)
 def test_example_scenes_with_the_shipped_and_random_weights(scene_file, shipped):
+    from gnsx.evaluation.scene_rollout import load_scene
     from gnsx.mpm.generate import initial_state
     from gnsx.mpm.presets import get_preset
-    from gnsx.scene_rollout import load_scene
 
     preset = get_preset("small")
     position, velocity, types = initial_state(load_scene(scene_file), preset)
@@ -297,8 +297,8 @@ def test_batched_graphs_cull_each_graph_on_its_own():
 
 @pytest.mark.parametrize("name", ["simplified", "original"])
 def test_training_loss_and_gradients_are_the_same(name):
-    """The training loss counts dynamic particles only (gnsx.system), so culling is exact for training."""
-    from gnsx.system import acceleration_loss
+    """The training loss counts dynamic particles only (gnsx.training.system), so culling is exact for training."""
+    from gnsx.training.system import acceleration_loss
 
     simulator = make(name).train()
     window, types = random_scene(history=simulator.history, seed=4)
@@ -374,7 +374,7 @@ def test_freezing_holds_resting_water_far_from_motion_only():
 
 
 def test_culling_benchmark_rows_and_table():
-    from gnsx.benchmark import CULL_SCENES, compare_culling, cull_scene, format_culling
+    from gnsx.perf.benchmark import CULL_SCENES, compare_culling, cull_scene, format_culling
 
     for name in CULL_SCENES:
         window, types, bounds = cull_scene(name, scale=0.2)
@@ -396,7 +396,7 @@ def test_culling_benchmark_rows_and_table():
 
 
 def test_freeze_check_against_the_exact_path():
-    from gnsx.benchmark import format_freeze, freeze_check
+    from gnsx.perf.benchmark import format_freeze, freeze_check
 
     simulator = make("simplified")
     window, types = floor_scene(simulator.history)

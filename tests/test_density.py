@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model.density import DensityLimit, lattice_density
 
 SPACING = 0.015625

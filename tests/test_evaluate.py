@@ -16,15 +16,20 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx.benchmark import build_model, format_results, measure_inference, packed_scene
-from gnsx.checkpoints import load_simulator, model_label
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
+from gnsx.data.datamodule import TrajectoryDataset
 from gnsx.data.metadata import Metadata
+from gnsx.data.rollout_io import (
+    DEEPMIND_KEYS,
+    Rollout,
+    export_deepmind,
+    from_deepmind,
+    load_rollout,
+    save_rollout,
+)
 from gnsx.data.store import SplitReader, load_metadata
-from gnsx.datamodule import TrajectoryDataset
-from gnsx.errors import DataError
-from gnsx.rollout_io import DEEPMIND_KEYS, Rollout, export_deepmind, from_deepmind, load_rollout, save_rollout
-from gnsx.scoring import (
+from gnsx.evaluation.scoring import (
     distribution_frames,
     evaluate_simulator,
     format_table,
@@ -32,7 +37,9 @@ from gnsx.scoring import (
     rollout_errors,
     summarise,
 )
-from gnsx.system import GNSSystem
+from gnsx.model.checkpoint import load_simulator, model_label
+from gnsx.perf.benchmark import build_model, format_results, measure_inference, packed_scene
+from gnsx.training.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"latent_size": 8, "mlp_hidden_size": 8, "mp_steps": 2}
@@ -196,8 +203,8 @@ def test_table_says_loudly_when_the_model_does_not_beat_the_baseline(monkeypatch
 
 def test_scoring_imports_nothing_of_the_training_code():
     code = (
-        "import sys, gnsx.scoring\n"
-        "bad = [m for m in ('gnsx.pipeline', 'gnsx.evaluate', 'gnsx.system') if m in sys.modules]\n"
+        "import sys, gnsx.evaluation.scoring\n"
+        "bad = [m for m in ('gnsx.training.pipeline', 'gnsx.evaluation.evaluate', 'gnsx.training.system') if m in sys.modules]\n"
         "assert not bad, bad"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -13,6 +13,7 @@ from tfrecord import example_pb2
 from tfrecord.reader import tfrecord_iterator
 from tfrecord.writer import TFRecordWriter
 
+from gnsx.core.errors import DataError
 from gnsx.data.formats import (
     FORMATS,
     convert,
@@ -25,7 +26,6 @@ from gnsx.data.formats import (
 from gnsx.data.metadata import compute_statistics
 from gnsx.data.store import SplitReader, load_metadata
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 
 GEOMETRY = {"bounds": [[0.1, 0.9], [0.1, 0.9]], "default_connectivity_radius": 0.05, "dim": 2, "dt": 0.0025}
 STATS = {"vel_mean": [0.0, -1e-4], "vel_std": [2e-3, 2e-3], "acc_mean": [0.0, -1e-5], "acc_std": [2e-4, 2e-4]}

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx.checkpoints import load_simulator
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.errors import ConfigError
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import ConfigError
+from gnsx.model.checkpoint import load_simulator
 from gnsx.model.freeflight import FreeFlight
 from gnsx.model.rollout import rollout
 from gnsx.model.rules import Rules

@@ -113,7 +113,7 @@ def test_encode_process_decode_shapes(config):
 
 def _waterramps_like_graph(simulator, num_particles=300, seed=0):
     """Node/edge inputs of ``simulator`` for a jittered block of water with a row of static particles."""
-    from gnsx.benchmark import packed_scene
+    from gnsx.perf.benchmark import packed_scene
 
     sequence, particle_type = packed_scene(
         num_particles, 0.009, simulator.config["bounds"], simulator.history, seed=seed
@@ -129,7 +129,7 @@ def test_fast_network_matches_reference_on_both_configs(name):
     """Random weights: the whole encode-process-decode forward and its parameter gradients."""
     from reference_gns import reference_forward
 
-    from gnsx.benchmark import build_model
+    from gnsx.perf.benchmark import build_model
 
     torch.manual_seed(0)
     simulator = build_model(name)
@@ -154,7 +154,7 @@ def test_fast_network_matches_reference_with_shipped_weights():
 
     from reference_gns import reference_forward
 
-    from gnsx.checkpoints import load_simulator
+    from gnsx.model.checkpoint import load_simulator
 
     path = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
     simulator = load_simulator(path)
@@ -170,8 +170,8 @@ def test_culled_network_matches_reference_on_decoded_rows(name):
     """Exact culling (decode=mask) is an option of the fast path: its decoded rows are the reference's."""
     from reference_gns import reference_forward
 
-    from gnsx.benchmark import build_model
     from gnsx.model.culling import plan_culling
+    from gnsx.perf.benchmark import build_model
 
     torch.manual_seed(0)
     simulator = build_model(name)
@@ -205,8 +205,8 @@ def test_culled_gradients_match_reference(name):
     autograd of the reference, random weights of both configs and the shipped weights."""
     from pathlib import Path
 
-    from gnsx.benchmark import build_model
-    from gnsx.checkpoints import load_simulator
+    from gnsx.model.checkpoint import load_simulator
+    from gnsx.perf.benchmark import build_model
 
     torch.manual_seed(0)
     if name == "shipped":
@@ -231,7 +231,7 @@ def test_compiled_network_matches_eager(name):
     """``compile=True`` (torch.compile of the blocks) changes speed only: same rollout frame, same training
     gradients (to the rounding the reference test allows: ReLU kinks amplify it in 10 residual steps),
     culled and not, on two graph sizes (dynamic shapes)."""
-    from gnsx.benchmark import build_model
+    from gnsx.perf.benchmark import build_model
 
     torch.manual_seed(0)
     eager = build_model(name)

@@ -1,4 +1,4 @@
-"""The hard-case suite (gnsx/hardcases.py) on short rollouts."""
+"""The hard-case suite (gnsx/evaluation/hardcases.py) on short rollouts."""
 
 import json
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_simulator import make_simulator
 
-from gnsx.hardcases import CASES, drift, format_report, run_suite
+from gnsx.evaluation.hardcases import CASES, drift, format_report, run_suite
 from gnsx.mpm.presets import get_preset
 
 

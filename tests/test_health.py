@@ -1,11 +1,11 @@
-"""Rollout health: NaN, blow-up speed, walls and ramps (gnsx/health.py)."""
+"""Rollout health: NaN, blow-up speed, walls and ramps (gnsx/evaluation/health.py)."""
 
 import numpy as np
 import pytest
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.data.metadata import Metadata
-from gnsx.health import BLOW_UP_SPEED_STD, describe, rollout_health, speed_limit, warn_if_unhealthy
+from gnsx.evaluation.health import BLOW_UP_SPEED_STD, describe, rollout_health, speed_limit, warn_if_unhealthy
 
 METADATA = Metadata(
     bounds=[[0.1, 0.9], [0.1, 0.9]],

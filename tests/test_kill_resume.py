@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from gnsx import runstate
-from gnsx.checkpoints import read_checkpoint
-from gnsx.resilience import AtomicCheckpointIO, remove_stale_temporaries
+from gnsx.core import runstate
+from gnsx.model.checkpoint import read_checkpoint
+from gnsx.training.resilience import AtomicCheckpointIO, remove_stale_temporaries
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["model.latent_size=8", "model.mlp_hidden_size=8", "model.mp_steps=2"]

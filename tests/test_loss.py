@@ -1,4 +1,4 @@
-"""The training losses on the normalised acceleration (gnsx.system.acceleration_loss)."""
+"""The training losses on the normalised acceleration (gnsx.training.system.acceleration_loss)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from gnsx.system import GNSSystem, acceleration_loss
+from gnsx.training.system import GNSSystem, acceleration_loss
 
 
 def test_mse_is_squared_error_summed_over_dims_averaged_over_particles():

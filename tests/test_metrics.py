@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx import metrics
-from gnsx.metrics import (
+from gnsx.evaluation import metrics
+from gnsx.evaluation.metrics import (
     centre_of_mass_mse,
     earth_movers_distance,
     kinetic_energy,

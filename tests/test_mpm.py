@@ -12,10 +12,10 @@ import pytest
 import torch
 
 import gnsx.mpm.generate as generate_module
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
 from gnsx.data.__main__ import main as data_main
 from gnsx.data.store import SplitReader
-from gnsx.errors import DataError
 from gnsx.mpm.generate import (
     generate_dataset,
     is_dam_scene,

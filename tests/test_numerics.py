@@ -9,12 +9,12 @@ import torch
 from hydra import compose, initialize_config_dir
 from test_train import CONF, TINY
 
-import gnsx.system
+import gnsx.training.system
+from gnsx.data.datamodule import ParticleDataModule
 from gnsx.data.store import load_metadata
-from gnsx.datamodule import ParticleDataModule
-from gnsx.numerics import Diverged, SkippedSteps, finite_gradients
-from gnsx.pipeline import build_trainer
-from gnsx.system import GNSSystem
+from gnsx.training.numerics import Diverged, SkippedSteps, finite_gradients
+from gnsx.training.pipeline import build_trainer
+from gnsx.training.system import GNSSystem
 
 MODEL = {"latent_size": 8, "mlp_hidden_size": 8, "mp_steps": 2}
 
@@ -41,7 +41,7 @@ class _Snapshots(L.Callback):
 
 def _fit(dataset, monkeypatch, poison, bad_steps: set[int], max_steps: int, max_skipped: int = 20):
     """Train the tiny model ``max_steps`` steps; ``poison(loss, predicted)`` is the loss of ``bad_steps``."""
-    original = gnsx.system.acceleration_loss
+    original = gnsx.training.system.acceleration_loss
     calls = []
 
     def loss_fn(predicted, target, kind="mse", delta=1.0):
@@ -49,7 +49,7 @@ def _fit(dataset, monkeypatch, poison, bad_steps: set[int], max_steps: int, max_
         calls.append(None)
         return poison(loss, predicted) if len(calls) - 1 in bad_steps else loss
 
-    monkeypatch.setattr(gnsx.system, "acceleration_loss", loss_fn)
+    monkeypatch.setattr(gnsx.training.system, "acceleration_loss", loss_fn)
     meta = load_metadata(dataset)
     stats = {key: getattr(meta, key) for key in ("vel_mean", "vel_std", "acc_mean", "acc_std")}
     system = GNSSystem(model=MODEL, dim=meta.dim, bounds=meta.bounds, radius=meta.default_connectivity_radius,
@@ -125,7 +125,7 @@ def test_gradient_clipping_and_wall_clock_checkpoints_are_configurable(tmp_path)
 
 
 def test_a_diverged_run_is_one_line_with_exit_status_1(capsys, monkeypatch):
-    from gnsx.cli import hydra_task
+    from gnsx.core.cli import hydra_task
 
     monkeypatch.delenv("GNSX_DEBUG", raising=False)
 
@@ -140,7 +140,7 @@ def test_a_diverged_run_is_one_line_with_exit_status_1(capsys, monkeypatch):
 
 
 def test_threads_auto_leaves_busy_cores_alone(monkeypatch):
-    from gnsx import threads
+    from gnsx.core import threads
 
     assert threads.choose_threads(1, cores=2, load=0.1) == 2  # idle: every core
     assert threads.choose_threads(1, cores=2, load=1.0) == 1  # one core busy elsewhere

@@ -4,14 +4,14 @@ bf16-autocast training pair stays close to the fp32 one, forward and backward.""
 import pytest
 import torch
 
-from gnsx.benchmark import build_model
 from gnsx.model.edge_ops import add_product_, receiver_offsets
 from gnsx.model.padding import EDGE_BUCKET, NODE_BUCKET, needs_padding, pad_graph
+from gnsx.perf.benchmark import build_model
 
 
 def _scene(simulator, num_particles=150, seed=0):
     """Positions ``[N, H + 1, D]``, types ``[N]`` of a jittered block of water beside static particles."""
-    from gnsx.benchmark import packed_scene
+    from gnsx.perf.benchmark import packed_scene
 
     sequence, particle_type = packed_scene(
         num_particles, 0.009, simulator.config["bounds"], simulator.history, seed=seed
@@ -100,7 +100,7 @@ def test_bf16_training_pair_close_to_fp32():
 
 
 def test_auto_precision_follows_the_cpu_flags(tmp_path):
-    from gnsx.precision import cpu_has_native_bf16, resolve_precision
+    from gnsx.training.precision import cpu_has_native_bf16, resolve_precision
 
     zen4, avx2 = tmp_path / "zen4", tmp_path / "avx2"
     zen4.write_text("processor\t: 0\nflags\t\t: fpu sse avx2 avx512f avx512_bf16 avx512_vnni\n")

@@ -4,7 +4,7 @@ import pytest
 import torch
 from test_simulator import METADATA, make_simulator, scene
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model.features import edge_features
 from gnsx.model.simulator import wall_contact_gate
 

@@ -12,12 +12,12 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
+from gnsx.evaluation.scoring import score_trajectory
+from gnsx.model.checkpoint import load_simulator
 from gnsx.model.rules import Rules
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import Preset
-from gnsx.scoring import score_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "pretrained" / "small"
@@ -91,7 +91,7 @@ def test_shipped_weights_reproduce_their_test_rollout(shipped):
 
 
 def test_best_validation_checkpoint_matches_logged_step_to_saved_file(tmp_path):
-    from gnsx.pretrained import best_validation_checkpoint
+    from gnsx.training.export import best_validation_checkpoint
 
     run = tmp_path / "run"
     (run / "checkpoints" / "permanent").mkdir(parents=True)
@@ -105,8 +105,8 @@ def test_best_validation_checkpoint_matches_logged_step_to_saved_file(tmp_path):
 
 
 def test_best_scored_checkpoint_pools_the_trajectories_of_every_results_file(tmp_path):
-    from gnsx.errors import DataError
-    from gnsx.pretrained import best_scored_checkpoint
+    from gnsx.core.errors import DataError
+    from gnsx.training.export import best_scored_checkpoint
 
     def results(name: str, scores: dict[str, list[float]]):
         models = [
@@ -131,7 +131,7 @@ def test_best_scored_checkpoint_pools_the_trajectories_of_every_results_file(tmp
 
 
 def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
-    from gnsx.pretrained import export
+    from gnsx.training.export import export
 
     run = tmp_path / "run"
     (run / "checkpoints" / "permanent").mkdir(parents=True)
@@ -157,8 +157,8 @@ def test_failed_export_leaves_the_shipped_folder_untouched(tmp_path):
 def test_export_reuses_a_test_evaluation_of_the_same_checkpoint_only(tmp_path):
     """``--test-results``: an evaluate.py file that scored the exported checkpoint on the test split is used
     as is; one of another checkpoint, or of another split, is refused and nothing is written."""
-    from gnsx.errors import DataError
-    from gnsx.pretrained import export
+    from gnsx.core.errors import DataError
+    from gnsx.training.export import export
 
     run = tmp_path / "run"
     (run / "checkpoints" / "permanent").mkdir(parents=True)
@@ -202,7 +202,7 @@ def test_export_reuses_a_test_evaluation_of_the_same_checkpoint_only(tmp_path):
 def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     """The shipping rule: the lowest validation error among checkpoints that keep a pool at rest (the
     pretrain's step 10k scored best and drifted 4.5 cm per 100 frames; README, Decisions)."""
-    from gnsx.pretrained import export, first_at_rest
+    from gnsx.training.export import export, first_at_rest
 
     drifts = {"a.ckpt": 4.5, "b.ckpt": 0.06, "c.ckpt": 0.1}
     ranked = [Path(n) for n in drifts]
@@ -263,7 +263,7 @@ def test_shipped_model_falls_at_g():
     forces cancel in sum, so the block's mean falls at g whatever the weights, and this checks the median
     particle, which the forces inside the block can still push. The node-decoder weights shipped before
     predicted -4.3 to -9.3 m/s^2 (those before them -10.3 to -12.5)."""
-    from gnsx.hardcases import FREE_FALL_CASES, free_fall_acceleration, free_fall_error
+    from gnsx.evaluation.hardcases import FREE_FALL_CASES, free_fall_acceleration, free_fall_error
 
     simulator = load_simulator(SHIPPED / "model.ckpt")
     for height, speed in FREE_FALL_CASES:

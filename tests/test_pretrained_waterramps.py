@@ -1,5 +1,5 @@
 """The waterramps-preset weights (``pretrained/waterramps``, trained on a lent H200 by
-``scripts/gpu_waterramps.sh``, exported by ``gnsx.pretrained``) are complete, fit the preset, were shipped
+``scripts/gpu_waterramps.sh``, exported by ``gnsx.training.export``) are complete, fit the preset, were shipped
 only because they beat the physics-free baseline on 16 held-out trajectories, reproduce their recorded test
 scores on a trajectory regenerated here, and fall at g."""
 
@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from gnsx.checkpoints import load_simulator
 from gnsx.data.metadata import Metadata
-from gnsx.hardcases import FREE_FALL_CASES, free_fall_acceleration
+from gnsx.evaluation.hardcases import FREE_FALL_CASES, free_fall_acceleration
+from gnsx.evaluation.scoring import baseline_errors, onestep_mse
+from gnsx.model.checkpoint import load_simulator
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import Preset
-from gnsx.scoring import baseline_errors, onestep_mse
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "waterramps"
 

@@ -8,8 +8,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.render import (
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.evaluation.render import (
     BACKGROUND,
     GREY,
     colour_scale,

@@ -10,7 +10,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from gnsx.report import (
+from gnsx.evaluation.report import (
     budget_lines,
     build_report,
     grid_layout,
@@ -25,11 +25,11 @@ from gnsx.report import (
     table_rows,
     versus_best,
 )
-from gnsx.scoring import summarise
+from gnsx.evaluation.scoring import summarise
 
 
 def _job(sweep_dir: Path, number: int, results: dict | None, hydra_model: dict | None = None) -> Path:
-    """A job folder as Hydra + gnsx.pipeline leave it: .hydra/config.yaml, results.json, a frame PNG."""
+    """A job folder as Hydra + gnsx.training.pipeline leave it: .hydra/config.yaml, results.json, a frame PNG."""
     folder = sweep_dir / str(number)
     (folder / ".hydra").mkdir(parents=True)
     model = hydra_model or (results or {}).get("model_config", {})

@@ -10,8 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from gnsx.checkpoints import load_simulator
-from gnsx.hardcases import (
+from gnsx.evaluation.hardcases import (
     DAM_MIN_SPEED,
     DAM_SPEED_SHARE,
     REST_DRIFT_TARGET_CM,
@@ -19,6 +18,7 @@ from gnsx.hardcases import (
     dam_breaks,
     rest_drift,
 )
+from gnsx.model.checkpoint import load_simulator
 from gnsx.model.rest import RestHold
 from gnsx.model.rules import Rules
 
@@ -68,7 +68,7 @@ def test_thresholds_follow_the_data_and_the_models_gravity():
 
 def test_shipped_weights_keep_a_pool_at_rest_only_with_the_hold():
     """Issue 11's target: water at rest drifts under 0.5 cm per 100 frames (the MPM: 0.03); the rest gate
-    that ``gnsx.pretrained`` puts a checkpoint through before shipping it, with tests 1-3 alone (test 4 would
+    that ``gnsx.training.export`` puts a checkpoint through before shipping it, with tests 1-3 alone (test 4 would
     hold this pool for any model)."""
     simulator = load_simulator(SHIPPED)
     tests_1_to_3 = {held: Rules(hold_rest=held, level_pool=False) for held in (True, False)}
@@ -168,7 +168,7 @@ def test_a_pool_on_a_raised_floor_of_static_particles_is_held_only_with_its_supp
 def test_shipped_weights_hold_a_deep_pool_only_with_test_4():
     """The ``dense_10x`` hard case (0.78 m of water, wall to wall; the MPM's fastest particle 0.15 m/s
     over 250 frames): over 20 frames it stays put with test 4 and starts to collapse without it."""
-    from gnsx.hardcases import _cpu_case
+    from gnsx.evaluation.hardcases import _cpu_case
     from gnsx.model.rollout import rollout
 
     simulator, initial, types = _cpu_case(load_simulator(SHIPPED), "dense_10x")

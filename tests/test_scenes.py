@@ -11,8 +11,8 @@ import pytest
 import yaml
 from scipy.spatial import cKDTree
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.errors import DataError
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
 from gnsx.mpm.presets import PRESETS, Preset, get_preset
 from gnsx.mpm.scenes import (
     Scene,

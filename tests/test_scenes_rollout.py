@@ -13,13 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.errors import DataError
-from gnsx.mpm.generate import simulate_scene
-from gnsx.mpm.presets import get_preset
-from gnsx.mpm.scenes import Scene, WaterBlock
-from gnsx.rollout_io import load_rollout
-from gnsx.scene_rollout import (
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
+from gnsx.data.rollout_io import load_rollout
+from gnsx.evaluation.scene_rollout import (
     check_scene,
     constant_velocity_history,
     initial_state,
@@ -27,7 +24,10 @@ from gnsx.scene_rollout import (
     rollout_scene,
     save_scene,
 )
-from gnsx.system import GNSSystem
+from gnsx.mpm.generate import simulate_scene
+from gnsx.mpm.presets import get_preset
+from gnsx.mpm.scenes import Scene, WaterBlock
+from gnsx.training.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = get_preset("small", num_frames=10)

@@ -2,7 +2,7 @@ import math
 
 import pytest
 
-from gnsx.schedule import learning_rate, noise_std, warmup_factor
+from gnsx.training.schedule import learning_rate, noise_std, warmup_factor
 
 
 def test_learning_rate_follows_paper_eq8():
@@ -34,7 +34,7 @@ def test_warmup_ramps_the_learning_rate_linearly_then_leaves_it():
 
 
 def test_system_optimizer_follows_warmup_times_decay():
-    from gnsx.system import GNSSystem
+    from gnsx.training.system import GNSSystem
 
     system = GNSSystem(
         model=dict(latent_size=8, mlp_hidden_size=8, mp_steps=1),

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gnsx.core.errors import DataError
 from gnsx.data.metadata import Metadata
-from gnsx.errors import DataError
-from gnsx.mpm.sensitivity import dataset_recipe, measure
+from gnsx.evaluation.sensitivity import dataset_recipe, measure
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,15 @@ def test_a_dataset_without_a_recipe_is_refused(tmp_path):
 
 
 def test_cli_writes_its_table_and_refuses_a_negative_delta(tmp_path, tiny_dataset):
-    command = [sys.executable, "-m", "gnsx.mpm.sensitivity", "--data", str(tiny_dataset), "--split", "test"]
+    command = [
+        sys.executable,
+        "-m",
+        "gnsx.evaluation.sensitivity",
+        "--data",
+        str(tiny_dataset),
+        "--split",
+        "test",
+    ]
     bad = subprocess.run([*command, "--deltas", "0", "-0.5"], capture_output=True, text=True, cwd=ROOT)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "--deltas" in bad.stderr
     out = tmp_path / "sens"

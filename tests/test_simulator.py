@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import LearnedSimulator, physics_free_baseline, random_walk_noise, rollout
 from gnsx.model.boundary import Boundary
 from gnsx.model.features import edge_features, type_scalar_feature, wall_features

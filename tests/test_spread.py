@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from gnsx.spread import (
+from gnsx.evaluation.spread import (
     A_BETTER,
     B_BETTER,
     BEATS,

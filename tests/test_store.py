@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gnsx.core.errors import DataError
 from gnsx.data.metadata import Metadata, compute_statistics
 from gnsx.data.store import (
     INDEX_FILE,
@@ -21,7 +22,6 @@ from gnsx.data.store import (
 )
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory
-from gnsx.errors import DataError
 
 GEOMETRY = {"bounds": [[0.1, 0.9], [0.1, 0.9]], "default_connectivity_radius": 0.05, "dim": 2, "dt": 0.0025}
 STATS = {"vel_mean": [0.0, -1e-4], "vel_std": [2e-3, 2e-3], "acc_mean": [0.0, -1e-5], "acc_std": [2e-4, 2e-4]}
@@ -324,7 +324,7 @@ def test_a_killed_writes_temporary_folder_is_removed_by_the_next_write(tmp_path,
     import subprocess
     import sys
 
-    from gnsx.runstate import liveness
+    from gnsx.core.runstate import liveness
 
     dead = subprocess.run(
         [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True

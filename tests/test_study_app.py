@@ -10,7 +10,7 @@ from collections import Counter
 import pytest
 from test_study_support import tiny_study
 
-from gnsx.errors import DataError
+from gnsx.core.errors import DataError
 from gnsx.study.__main__ import main
 from gnsx.study.app import create_app
 from gnsx.study.assign import questions_for

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from test_study_support import ORIGINAL, SIMPLIFIED, TINY_RENDER, scene_positions, tiny_study, write_rollouts
 
-from gnsx.errors import DataError
-from gnsx.rollout_io import Rollout, save_rollout
+from gnsx.core.errors import DataError
+from gnsx.data.rollout_io import Rollout, save_rollout
 from gnsx.study.__main__ import main
 from gnsx.study.build import build_study, choose_pairs
 from gnsx.study.manifest import MANIFEST, load_study
@@ -85,7 +85,7 @@ def test_rollouts_of_evaluate_py(tiny_dataset, tmp_path, one_thread):
     from test_evaluate import ORIGINAL_TINY, TINY, save_tiny_checkpoint
 
     from gnsx.data.store import load_metadata
-    from gnsx.evaluate import evaluate_checkpoints
+    from gnsx.evaluation.evaluate import evaluate_checkpoints
 
     metadata = load_metadata(tiny_dataset)
     checkpoints = [

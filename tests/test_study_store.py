@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from gnsx.errors import DataError
+from gnsx.core.errors import DataError
 from gnsx.study.assign import Question
 from gnsx.study.store import AlreadyAnswered, AnswerStore, UnknownQuestion, read_answers
 

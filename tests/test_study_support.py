@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.rollout_io import Rollout, save_rollout
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.data.rollout_io import Rollout, save_rollout
 from gnsx.study.build import RenderSettings, build_study
 
 ORIGINAL = "original GNS 128/10"

@@ -17,14 +17,14 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from gnsx.pipeline import Diverged, as_divergence, one_line
-from gnsx.report import build_report, load_sweep
-from gnsx.time_budget import TrainingClock
+from gnsx.evaluation.report import build_report, load_sweep
+from gnsx.training.pipeline import Diverged, as_divergence, one_line
+from gnsx.training.time_budget import TrainingClock
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "sweeps"
 CONF = ROOT / "conf"
-HAS_BENCHMARK = importlib.util.find_spec("gnsx.benchmark") is not None
+HAS_BENCHMARK = importlib.util.find_spec("gnsx.perf.benchmark") is not None
 
 
 def _compose_sweep(name: str, overrides: list[str] | None = None):
@@ -97,7 +97,7 @@ def test_non_finite_positions_count_as_divergence_and_reasons_are_one_line():
 
 def test_training_clock_leaves_validation_out(monkeypatch):
     now = [100.0]
-    monkeypatch.setattr("gnsx.pipeline.time.perf_counter", lambda: now[0])
+    monkeypatch.setattr("gnsx.training.pipeline.time.perf_counter", lambda: now[0])
     clock = TrainingClock()
     assert clock.summary() == {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
     trainer = SimpleNamespace(global_step=10)  # a resumed run: its own steps only
@@ -176,7 +176,7 @@ def test_grid_multirun_records_every_job_and_the_report_shows_them(tmp_path, tin
         if HAS_BENCHMARK:
             assert job["bench"]["ms_per_frame"] > 0 and job["bench"]["num_particles"] >= 250
         else:
-            assert "gnsx.benchmark" in job["bench"]["error"]
+            assert "gnsx.perf.benchmark" in job["bench"]["error"]
     # One wandb run per job, the failed one included.
     for job_dir in sweep_dir.glob("[0-9]*"):
         assert len(list((job_dir / "wandb").glob("offline-run-*/*.wandb"))) == 1
@@ -247,7 +247,7 @@ def test_joblib_launcher(tmp_path, tiny_dataset):
 def test_benchmark_at_waterramps_size_grows_a_small_domain():
     from gnsx.data.metadata import Metadata
     from gnsx.model.simulator import LearnedSimulator
-    from gnsx.pipeline import benchmark_at_scale
+    from gnsx.training.pipeline import benchmark_at_scale
 
     meta = Metadata(bounds=[[0.1, 0.9], [0.1, 0.9]], sequence_length=10, default_connectivity_radius=0.035,
                     dim=2, dt=0.0025, vel_mean=[0.0, 0.0], vel_std=[2e-3, 2e-3], acc_mean=[0.0, 0.0],

@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch import nn
 
-from gnsx.schedule import learning_rate
-from gnsx.time_budget import TimeBudget, fitted_steps, parse_duration
+from gnsx.training.schedule import learning_rate
+from gnsx.training.time_budget import TimeBudget, fitted_steps, parse_duration
 
 
 def test_parse_duration_and_fitted_steps():
@@ -88,7 +88,7 @@ def test_time_budget_leaves_a_run_that_fits_alone():
 
 
 def test_throughput_cli_reports_rates(tiny_dataset, tmp_path, capsys):
-    from gnsx.throughput import main
+    from gnsx.perf.throughput import main
 
     out = tmp_path / "rates.json"
     assert main(["--data", str(tiny_dataset), "--batch-size", "2", "--steps", "10", "--warmup", "3",
@@ -96,7 +96,7 @@ def test_throughput_cli_reports_rates(tiny_dataset, tmp_path, capsys):
     (result,) = json.loads(out.read_text())
     assert result["steps_per_s"] > 0 and result["samples_per_s"] == pytest.approx(2 * result["steps_per_s"])
     assert "samples/s" in capsys.readouterr().out
-    assert main(["--data", str(tmp_path / "missing")]) == 2  # one line on stderr (gnsx.cli)
+    assert main(["--data", str(tmp_path / "missing")]) == 2  # one line on stderr (gnsx.core.cli)
     assert (
         capsys.readouterr().err == f"error: --data {tmp_path / 'missing'}: no gnsx dataset here "
         "(metadata.json missing); `make data` makes one\n"

@@ -14,9 +14,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from gnsx.data.metadata import Metadata
-from gnsx.pipeline import architecture, build_system, samples_before
-from gnsx.precision import resolve_precision
-from gnsx.system import GNSSystem
+from gnsx.training.pipeline import architecture, build_system, samples_before
+from gnsx.training.precision import resolve_precision
+from gnsx.training.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -144,8 +144,8 @@ def test_train_py_end_to_end_then_resume(tmp_path, tiny_dataset):
 
 
 def test_pushforward_and_mirror_training_read_longer_windows_and_train(tmp_path, tiny_dataset):
+    from gnsx.data.datamodule import FrameDataset
     from gnsx.data.store import SplitReader
-    from gnsx.datamodule import FrameDataset
 
     reader = SplitReader(tiny_dataset, "train")
     frames = [reader.num_frames(i) for i in range(len(reader))]

@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.cli import ArgumentParser, check_int, check_output_path, run_main
-from gnsx.constants import NUM_PARTICLE_TYPES, PARTICLE_TYPE_NAMES
+from gnsx.core.cli import ArgumentParser, check_int, check_output_path, run_main
+from gnsx.core.constants import NUM_PARTICLE_TYPES, PARTICLE_TYPE_NAMES
+from gnsx.core.errors import DataError
 from gnsx.data.formats import FORMATS, convert, export_dataset
 from gnsx.data.metadata import STATISTICS_KEYS
 from gnsx.data.store import SplitReader, list_splits, load_metadata, open_split
-from gnsx.errors import DataError
 
 
 def main(argv: Sequence[str] | None = None) -> int:

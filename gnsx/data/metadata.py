@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from gnsx.atomic import atomic_path
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.atomic import atomic_path
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.errors import DataError
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 
 #: The statistics keys, each a ``[dim]`` list.
 STATISTICS_KEYS = ("vel_mean", "vel_std", "acc_mean", "acc_std")

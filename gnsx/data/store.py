@@ -49,12 +49,12 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from gnsx.constants import SPLITS
+from gnsx.core.constants import SPLITS
+from gnsx.core.errors import DataError
+from gnsx.core.runstate import liveness, pid_alive
 from gnsx.data.metadata import Metadata, compute_statistics
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
-from gnsx.errors import DataError
-from gnsx.runstate import liveness, pid_alive
 
 log = logging.getLogger("gnsx")
 
@@ -558,7 +558,7 @@ def _remove_abandoned_writes(target: Path) -> None:
     nothing runs to clean up), so a killed generation does not leak hundreds of MB per attempt.
 
     Only folders whose writer is known to be gone are deleted: written by a process on this host that no
-    longer runs (:func:`gnsx.runstate.pid_alive`, pid start time checked). A folder of another host, or of
+    longer runs (:func:`gnsx.core.runstate.pid_alive`, pid start time checked). A folder of another host, or of
     a gnsx from before the writer record, is left alone with a warning naming it.
     """
     this_host = liveness()["host"]

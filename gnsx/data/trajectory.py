@@ -14,7 +14,7 @@ class Trajectory:
     Attributes:
         position: ``[num_frames, num_particles, dim]`` float32 positions (data units, WaterRamps: metres).
         particle_type: ``[num_particles]`` int64 type ids (5 water, 3 static boundary; see
-            :mod:`gnsx.constants`). Constant over the trajectory.
+            :mod:`gnsx.core.constants`). Constant over the trajectory.
         key: an integer id (DeepMind's context ``key``); the index in its split when unknown.
     """
 

@@ -1,7 +1,7 @@
 """Checks every trajectory passes before gnsx stores it: one clear line naming file, trajectory, field, frame.
 
 Readers and the store call :func:`check_trajectory` on each trajectory they produce or write, so a bad input
-fails with a :class:`~gnsx.errors.DataError` such as::
+fails with a :class:`~gnsx.core.errors.DataError` such as::
 
     data/train.tfrecord, trajectory 12: field 'position': frame 40 has NaN (particle 7)
 
@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnsx.constants import NUM_PARTICLE_TYPES
+from gnsx.core.constants import NUM_PARTICLE_TYPES
+from gnsx.core.errors import DataError
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 
 
 def trajectory_where(path: object, index: int) -> str:

@@ -1,7 +1,10 @@
 """The GNS model family: neighbour search, features, noise, graph network, simulator and rollout.
 
 The paper's simplified GNS and DeepMind's original GNS are two configurations of :class:`LearnedSimulator`
-(see :mod:`gnsx.model.simulator` for the table of arguments).
+(see :mod:`gnsx.model.simulator` for the table of arguments; :mod:`gnsx.model.registry` names them).
+:func:`rollout` is the one rollout loop every tool uses; the walls and ramps (:mod:`~gnsx.model.boundary`)
+and the opt-in rules after the network (:mod:`~gnsx.model.rules`) act inside it.
+:mod:`gnsx.model.checkpoint` reads a trained simulator back from a Lightning checkpoint file without Lightning.
 """
 
 from gnsx.model.graph_network import MLP, EncodeProcessDecode, InteractionNetwork

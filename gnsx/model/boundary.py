@@ -32,7 +32,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 
 #: Two static particles closer than ``LINK_FACTOR`` times the median nearest-static-neighbour distance are
 #: joined by a segment (1.5: the next particle along a ramp, never the one after it).

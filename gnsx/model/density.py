@@ -13,7 +13,7 @@ tolerance) rho_0``, or, where that is higher, the particle's own density in the 
 the jittered blocks a scene starts with or the dense bottom of a pool at rest. Where the water is not
 compressed nothing moves; displacements are pairwise and antisymmetric, so they conserve the water's centre
 of mass. ``rho_0`` comes from the scene itself: the density of an interior particle of a square lattice at
-the first frame's particle spacing (:func:`gnsx.metrics.particle_spacing`, the 4-neighbour estimate that
+the first frame's particle spacing (:func:`gnsx.model.neighbors.particle_spacing`, the 4-neighbour estimate that
 the area metric and the renderer use; scenes start as jittered blocks on a lattice).
 
 Before 2026-12-02 the spacing was the median nearest-neighbour distance, which reads ~0.73 of the lattice
@@ -36,9 +36,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
-from gnsx.metrics import particle_spacing
-from gnsx.model.neighbors import radius_graph
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.model.neighbors import particle_spacing, radius_graph
 
 #: Relative density above the rest density that counts as compressed. Chosen on 32 fresh trajectories
 #: (``data/tune32``, seed 11; README Decisions): from 0.1 to 0.45 a tighter limit gave a lower whole-rollout

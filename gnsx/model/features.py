@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from gnsx.constants import NUM_PARTICLE_TYPES
+from gnsx.core.constants import NUM_PARTICLE_TYPES
 
 
 def velocity_sequence(position_sequence: Tensor) -> Tensor:

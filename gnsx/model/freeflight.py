@@ -56,7 +56,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 
 #: Velocity tolerance, as a fraction of the length of the data's velocity std (per frame): the truth's free
 #: blocks move as one to float precision; a model's rollout that has started shuffling does not.

@@ -146,3 +146,28 @@ def _cell_list_pairs(position: Tensor, radius: float, batch: Tensor | None) -> t
         squared_distance = squared_distance + delta[:, d] * delta[:, d]
     keep = (squared_distance <= radius * radius) & (senders != receivers)
     return receivers[keep], senders[keep]
+
+
+def particle_spacing(position, neighbours: int = 4) -> float:
+    """Typical distance between neighbouring particles (data units): the median, over the particles, of the
+    mean distance to their ``neighbours`` nearest (fewer when there are not that many).
+
+    With 4 neighbours this gives the lattice spacing s of square, hexagonal and jittered lattices alike
+    (1.00 s on each), and 0.93-1.03 s on MPM frames of the ``small`` and ``waterramps`` presets, settled
+    pools included; the nearest-neighbour distance alone reads 0.5-0.75 s on jittered or MPM particles (which
+    form close pairs). For particles on a line (ramps) pass ``neighbours=1``: the spacing along the line.
+
+    Args:
+        position: ``[N, D]`` positions of one frame; non-finite rows are left out.
+    Returns:
+        the spacing; NaN for fewer than 2 finite particles.
+    """
+    points = np.asarray(
+        position.detach().cpu() if isinstance(position, torch.Tensor) else position, np.float64
+    )
+    points = points[np.isfinite(points).all(1)]
+    k = min(neighbours, len(points) - 1)
+    if k < 1:
+        return float("nan")
+    distance, _ = cKDTree(points).query(points, k=k + 1)
+    return float(np.median(distance[:, 1:].mean(axis=1)))

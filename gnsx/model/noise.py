@@ -13,7 +13,7 @@ import math
 import torch
 from torch import Tensor
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 
 
 def random_walk_noise(

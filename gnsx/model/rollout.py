@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
 from gnsx.model.density import DensityLimit
 from gnsx.model.freeflight import FreeFlight

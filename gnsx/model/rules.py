@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from gnsx.errors import ConfigError
+from gnsx.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
 from gnsx.model.culling import hop_distance, particles_in_reach
 from gnsx.model.features import (
     edge_features,
@@ -108,7 +108,7 @@ class LearnedSimulator(nn.Module):
             None (off) or a speed > 0 in data units per frame; also settable on the model.
         decoder: ``"node"`` or ``"pairwise"`` (module docstring).
         gravity: ``[D]`` acceleration per frame^2 (data units) that the pairwise decoder adds to its forces
-            (:func:`gnsx.scoring.gravity_per_frame`); None: ``acc_mean`` (what the node decoder's zero output
+            (:func:`gnsx.evaluation.scoring.gravity_per_frame`); None: ``acc_mean`` (what the node decoder's zero output
             means). Ignored by the node decoder.
         compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
             C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes

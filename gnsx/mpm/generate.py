@@ -33,11 +33,11 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from gnsx.atomic import atomic_path, write_json
-from gnsx.constants import KINEMATIC_PARTICLE_ID, SPLITS, WATER_PARTICLE_ID
+from gnsx.core.atomic import atomic_path, write_json
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, SPLITS, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
 from gnsx.data.store import write_dataset
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 from gnsx.mpm.presets import Preset, get_preset
 from gnsx.mpm.scenes import (
     Scene,
@@ -113,7 +113,7 @@ def scene_solver(
     Args:
         position_noise: standard deviation (m) of Gaussian noise added to every water particle's initial
             position (seeded by ``noise_seed``), clipped into the walls; 0 (the default) adds nothing and
-            draws nothing. :mod:`gnsx.mpm.sensitivity` uses it to measure how far a perturbed start drifts.
+            draws nothing. :mod:`gnsx.evaluation.sensitivity` uses it to measure how far a perturbed start drifts.
 
     Returns:
         The solver, and the scene's ``position [N, 2]`` float32 and ``particle_type [N]`` of

@@ -24,7 +24,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from gnsx.constants import SPLITS
+from gnsx.core.constants import SPLITS
 from gnsx.mpm.solver import SolverSettings
 
 

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.errors import DataError
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
 
 if TYPE_CHECKING:  # presets import this module; only type hints need the reverse import
     from gnsx.mpm.presets import Preset

@@ -33,10 +33,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from gnsx.constants import WATER_PARTICLE_ID
+from gnsx.core.constants import WATER_PARTICLE_ID
+from gnsx.core.errors import DataError
 from gnsx.data.metadata import compute_statistics
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 from gnsx.mpm.generate import scene_solver
 from gnsx.mpm.presets import SOLVER_BEFORE_ISSUE_13, Preset
 from gnsx.mpm.scenes import Scene, WaterBlock, sample_scene, water_particles
@@ -403,7 +403,7 @@ def format_markdown(report: dict) -> str:
                     + " | ".join(f"{e[k]:+.1%}" if k in e else "-" for k in ("1", "2", "3"))
                     + " |"
                 )
-    from gnsx.benchmark import WATERRAMPS  # DeepMind's WaterRamps metadata (DESIGN.md section 3)
+    from gnsx.data.waterramps import WATERRAMPS
 
     lines += ["", "Normalisation statistics of the sampled scenes (per frame; x, y) next to WaterRamps':", ""]
     lines += ["| preset | solver | vel_std | acc_std |", "|---|---|---|---|"]
@@ -456,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     from pathlib import Path
 
-    from gnsx.atomic import write_json
+    from gnsx.core.atomic import write_json
     from gnsx.mpm.presets import get_preset
 
     parser = argparse.ArgumentParser(prog="python -m gnsx.mpm.validate", description=__doc__.split("\n")[0])
@@ -499,6 +499,6 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     import sys
 
-    from gnsx.cli import run_main
+    from gnsx.core.cli import run_main
 
     sys.exit(run_main(main))

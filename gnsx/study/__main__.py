@@ -39,7 +39,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from gnsx.errors import DataError
+from gnsx.core.errors import DataError
 
 EXIT_DATA_ERROR = 2
 

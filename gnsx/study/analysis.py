@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest, norm
 
-from gnsx.atomic import write_json
-from gnsx.errors import DataError
+from gnsx.core.atomic import write_json
+from gnsx.core.errors import DataError
 from gnsx.study.manifest import group_id
 from gnsx.study.scenes import TRUTH
 

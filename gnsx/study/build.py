@@ -5,7 +5,7 @@ MPM vs original, MPM vs simplified, original vs simplified), or of the methods a
 ``pairs_per_group`` scenes that both of its methods animated, drawn at random (seeded); across groups the
 scenes used least so far are drawn first, so the groups show as many different scenes as there are.
 
-Every method's animation of a scene is rendered once with :mod:`gnsx.render`, at one colour scale and disc
+Every method's animation of a scene is rendered once with :mod:`gnsx.evaluation.render`, at one colour scale and disc
 size for the whole scene (from its ground truth when there is one, else from its first method), so colours
 and sizes never tell the methods apart. Animations carry no titles. Files are
 ``media/<scene>/<method slug>.<gif|mp4>``; the manifest (:mod:`gnsx.study.manifest`) lists the pairs.
@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.atomic import write_json
-from gnsx.checkpoints import slug
-from gnsx.errors import DataError
+from gnsx.core.atomic import write_json
+from gnsx.core.errors import DataError
+from gnsx.model.checkpoint import slug
 from gnsx.study.manifest import MANIFEST, VERSION, group_id
 from gnsx.study.scenes import TRUTH, Scene, collect_scenes, methods_in
 from gnsx.study.store import ANSWERS
@@ -113,7 +113,14 @@ def render_scene(
     Returns:
         method -> file name (inside ``folder``).
     """
-    from gnsx.render import colour_scale, disc_radii, particle_spacing, render_frame, save_animation, speeds
+    from gnsx.evaluation.render import (
+        colour_scale,
+        disc_radii,
+        particle_spacing,
+        render_frame,
+        save_animation,
+        speeds,
+    )
 
     reference = scene.positions[TRUTH if TRUTH in scene.positions else methods[0]]
     length = min(len(scene.positions[m]) for m in methods)

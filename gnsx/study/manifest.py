@@ -21,7 +21,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from gnsx.errors import DataError
+from gnsx.core.errors import DataError
 
 MANIFEST = "study.json"
 VERSION = 1

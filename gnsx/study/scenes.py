@@ -1,6 +1,6 @@
 """Rollout files to study scenes: which methods animated which initial state.
 
-The study is built from gnsx rollout files (:mod:`gnsx.rollout_io`), as ``evaluate.py`` writes them
+The study is built from gnsx rollout files (:mod:`gnsx.data.rollout_io`), as ``evaluate.py`` writes them
 (``<run dir>/<model>/rollouts/<split>_<i>.npz``). Each file gives one scene (an initial state: a trajectory of
 a dataset split) animated by one model, and usually the MPM ground truth of the same frames, which becomes the
 method :data:`TRUTH`. The method of a file is the model label ``evaluate.py`` stored in it
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.errors import DataError
-from gnsx.rollout_io import Rollout, load_rollout
+from gnsx.core.errors import DataError
+from gnsx.data.rollout_io import Rollout, load_rollout
 
 #: The method name of the ground truth (gnsx's MPM solver; the paper's "Taichi-MPM").
 TRUTH = "MPM"

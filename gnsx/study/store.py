@@ -32,7 +32,7 @@ from contextlib import closing, contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from gnsx.errors import DataError
+from gnsx.core.errors import DataError
 from gnsx.study.assign import Question
 
 #: What a question shows, stored with it and copied into its answer: the pair, its group and the group's

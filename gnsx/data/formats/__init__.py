@@ -24,14 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from gnsx.constants import NUM_PARTICLE_TYPES, SPLITS
+from gnsx.core.constants import NUM_PARTICLE_TYPES, SPLITS
+from gnsx.core.errors import DataError
 from gnsx.data.formats.hdf5 import read_h5, write_h5
 from gnsx.data.formats.npz import read_npz, write_npz
 from gnsx.data.formats.tfrecord import read_tfrecord, write_tfrecord
 from gnsx.data.metadata import Metadata, read_metadata_json
 from gnsx.data.store import METADATA_FILE, SplitReader, list_splits, load_metadata, write_dataset
 from gnsx.data.trajectory import Trajectory
-from gnsx.errors import DataError
 
 #: Format name -> file suffix of ``{split}{suffix}``.
 FORMAT_SUFFIXES = {"tfrecord": ".tfrecord", "npz": ".npz", "h5": ".h5"}

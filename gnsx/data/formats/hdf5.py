@@ -20,10 +20,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from gnsx.atomic import atomic_path
+from gnsx.core.atomic import atomic_path
+from gnsx.core.errors import DataError
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
-from gnsx.errors import DataError
 
 
 def read_h5(path: str | os.PathLike) -> Iterator[Trajectory]:

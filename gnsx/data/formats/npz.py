@@ -9,7 +9,7 @@ array ``[2]`` (or ``[3]``) holding ``positions`` ``[T, N, D]`` (float32 or float
 
 **Pickle**: object arrays can only be stored pickled, and a plain unpickler runs whatever code a malicious
 file names. gnsx never calls one on data: the object members are read by :class:`NumpyUnpickler`, which
-rebuilds numpy arrays, dtypes and scalars and refuses any other global (a :class:`~gnsx.errors.DataError`
+rebuilds numpy arrays, dtypes and scalars and refuses any other global (a :class:`~gnsx.core.errors.DataError`
 naming the member and the refused name), and every other member with ``allow_pickle=False``. gnsx's own
 store never holds object arrays.
 
@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.atomic import atomic_path
+from gnsx.core.atomic import atomic_path
+from gnsx.core.errors import DataError
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
-from gnsx.errors import DataError
 
 GNS_DATA_KEY = "gns_data"
 MEMBER_PREFIX = "simulation_trajectory_"

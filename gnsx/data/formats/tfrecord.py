@@ -32,10 +32,10 @@ import numpy as np
 from google.protobuf.message import DecodeError
 from tfrecord import example_pb2
 
-from gnsx.atomic import atomic_path
+from gnsx.core.atomic import atomic_path
+from gnsx.core.errors import DataError
 from gnsx.data.trajectory import Trajectory
 from gnsx.data.validate import check_trajectory, trajectory_where
-from gnsx.errors import DataError
 
 _CRC_MASK_DELTA = 0xA282EAD8
 

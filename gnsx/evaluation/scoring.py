@@ -12,7 +12,7 @@ row key                     meaning (positions in data units, metres for WaterRa
 ``mse_at_10``,              ``rollout_mse`` over the first 10 / 50 predicted frames only (NaN when the rollout
 ``mse_at_50``               predicts fewer frames): short-horizon accuracy, before the errors compound
 ``com_mse``                 the part of ``rollout_mse`` that is the water's centre-of-mass error (the rest is
-                            its shape's, :func:`gnsx.metrics.centre_of_mass_mse`)
+                            its shape's, :func:`gnsx.evaluation.metrics.centre_of_mass_mse`)
 ``onestep_mse``             position MSE of single steps from ground-truth inputs (every ``onestep_stride``-th
                             frame)
 ``baseline_mse``            ``rollout_mse`` of the physics-free baseline; ``baseline_mse_at_10``,
@@ -26,21 +26,21 @@ row key                     meaning (positions in data units, metres for WaterRa
 ``neighbour_ratio``         mean over the EMD frames of (mean neighbours within R, predicted / true): above 1
                             the rollout compressed the fluid (volume loss), below 1 it spread it
 ``area_ratio_final``        area the water covers at the last frame, predicted / true
-                            (:func:`gnsx.metrics.area_ratio`, cells of 2 particle spacings, the spacing
+                            (:func:`gnsx.evaluation.metrics.area_ratio`, cells of 2 particle spacings, the spacing
                             measured on the first true frame): below 1 the water was lumped or packed
 ``out_of_bounds_fraction``  dynamic particles outside the walls, fraction, mean over predicted frames;
                             ``out_of_bounds_final``: their number at the last frame
-``nonfinite``               :func:`gnsx.health.rollout_health` of the prediction: NaN/Inf coordinates; the
+``nonfinite``               :func:`gnsx.evaluation.health.rollout_health` of the prediction: NaN/Inf coordinates; the
 ``max_speed``               fastest dynamic particle (m/s); steps through a ramp; the most particles outside
 ``ramp_crossings``          the box at any frame; whether it blew up (NaN, or faster than the blow-up speed).
 ``out_of_bounds_max``       A rollout held by its boundary (the default) has no crossing and nobody outside
 ``blew_up``
-``ms_per_frame``            :func:`gnsx.benchmark.measure_inference` on the trajectory's first frames (median
+``ms_per_frame``            :func:`gnsx.evaluation.timing.measure_inference` on the trajectory's first frames (median
                             after warm-up, graph build included); ``peak_memory_mb`` likewise
 ``rollout_ms_per_frame``    wall time of the whole rollout per frame (graph build included)
 ==========================  ==================================================================================
 
-:func:`summarise` turns the rows into a summary with the spread over trajectories (:mod:`gnsx.spread`):
+:func:`summarise` turns the rows into a summary with the spread over trajectories (:mod:`gnsx.evaluation.spread`):
 
 ===============================  =============================================================================
 summary key                      meaning
@@ -60,8 +60,8 @@ summary key                      meaning
 ===============================  =============================================================================
 
 :func:`evaluate_simulator` runs every trajectory and summarises; :func:`format_table` prints the result.
-Two models are compared with :func:`gnsx.spread.compare` (paired by trajectory). This module is the library
-under ``train.py``'s end-of-training evaluation and ``evaluate.py`` (:mod:`gnsx.evaluate`); it imports
+Two models are compared with :func:`gnsx.evaluation.spread.compare` (paired by trajectory). This module is the library
+under ``train.py``'s end-of-training evaluation and ``evaluate.py`` (:mod:`gnsx.evaluation.evaluate`); it imports
 neither them nor the Lightning system.
 """
 
@@ -78,11 +78,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gnsx.benchmark import measure_inference
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
-from gnsx.health import describe, rollout_health
-from gnsx.metrics import (
+from gnsx.evaluation.health import describe, rollout_health
+from gnsx.evaluation.metrics import (
     area_ratio,
     centre_of_mass_mse,
     earth_movers_distance,
@@ -94,10 +93,7 @@ from gnsx.metrics import (
     position_mse,
     position_mse_per_frame,
 )
-from gnsx.model.rollout import physics_free_baseline, rollout
-from gnsx.model.rules import Rules
-from gnsx.model.simulator import LearnedSimulator
-from gnsx.spread import (
+from gnsx.evaluation.spread import (
     DOES_NOT_BEAT,
     alarm,
     baseline_verdict,
@@ -106,6 +102,10 @@ from gnsx.spread import (
     mean_se,
     use_colour,
 )
+from gnsx.evaluation.timing import measure_inference
+from gnsx.model.rollout import physics_free_baseline, rollout
+from gnsx.model.rules import Rules
+from gnsx.model.simulator import LearnedSimulator
 
 #: Gravity of WaterRamps-like data (m/s^2, along -y); the baseline moves particles by g*dt^2 per frame^2.
 GRAVITY = 9.8
@@ -365,9 +365,9 @@ def score_trajectory(
             gravity for the baseline).
         index: the trajectory's index in its split (reported in the rows).
         emd_every: EMD and neighbour counts on frames that are multiples of this (and the last); 0: skip them.
-        emd_method: ``"exact"``, ``"sinkhorn"`` or ``"auto"`` (:func:`gnsx.metrics.earth_movers_distance`).
+        emd_method: ``"exact"``, ``"sinkhorn"`` or ``"auto"`` (:func:`gnsx.evaluation.metrics.earth_movers_distance`).
         onestep_stride: one-step MSE on every ``onestep_stride``-th frame.
-        timing_warmup, timing_repeats: :func:`gnsx.benchmark.measure_inference` on the initial frames;
+        timing_warmup, timing_repeats: :func:`gnsx.evaluation.timing.measure_inference` on the initial frames;
             ``timing_repeats=0`` skips it (``ms_per_frame`` and ``peak_memory_mb`` are then NaN/None).
         constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`)
             and the ``rules``; ``False`` scores the raw model. The baseline is always held by the boundary.
@@ -492,7 +492,7 @@ def evaluate_simulator(
 
     Args:
         trajectories: dicts with ``position [T, N, D]`` and ``particle_type [N]`` tensors (and optionally
-            ``index``), e.g. a :class:`~gnsx.datamodule.TrajectoryDataset`.
+            ``index``), e.g. a :class:`~gnsx.data.datamodule.TrajectoryDataset`.
         keep_first: return the first trajectory's positions for rendering.
         on_trajectory: called with each :class:`TrajectoryResult` as it is done (to save rollouts or per-frame
             rows without keeping every trajectory in memory).
@@ -655,3 +655,30 @@ def mean_per_frame(rows: Sequence[dict], keys: Sequence[str] = ("mse", "emd")) -
             if not math.isnan(row[key]):
                 by_frame.setdefault(row["frame"], {}).setdefault(key, []).append(row[key])
     return {t: {k: float(np.mean(v)) for k, v in values.items()} for t, values in sorted(by_frame.items())}
+
+
+@torch.inference_mode()
+def evaluate_trajectory(
+    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, onestep_stride: int = 10
+) -> dict[str, float]:
+    """Rollout and one-step position MSE of one trajectory (the validation metrics).
+
+    Args:
+        position: ``[T, N, D]`` ground-truth positions.
+        particle_type: ``[N]``.
+    Returns:
+        ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
+        starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
+        steps from ground-truth inputs on every ``onestep_stride``-th frame
+        (:func:`onestep_mse`).
+    """
+    frames = simulator.input_frames
+    position = position.to(simulator.acc_std.device)
+    particle_type = particle_type.to(position.device)
+    dynamic = particle_type != KINEMATIC_PARTICLE_ID
+    initial = position[:frames].transpose(0, 1)
+    predicted = rollout(simulator, initial, particle_type, position.shape[0] - frames)
+    return {
+        "rollout_mse": position_mse(predicted, position[frames:], dynamic),
+        "onestep_mse": onestep_mse(simulator, position, particle_type, stride=onestep_stride),
+    }

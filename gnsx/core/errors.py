@@ -1,7 +1,7 @@
 """Errors that are part of gnsx's interface: one clear line naming the file, field, frame or override.
 
 Every entry point turns a :class:`GnsxError` into ``error: <message>`` on stderr and exit status 2
-(:mod:`gnsx.cli`), and a :class:`RunFailed` into the same line with exit status 1; anything else is a bug
+(:mod:`gnsx.core.cli`), and a :class:`RunFailed` into the same line with exit status 1; anything else is a bug
 and keeps its traceback.
 """
 

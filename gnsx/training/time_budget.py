@@ -100,7 +100,7 @@ class TimeBudget(TrainingClock):
         safety: fraction of the remaining time planned for (validation runs and rate noise take the rest).
 
     The LightningModule must have ``set_schedule_scale(factor)`` (see
-    :meth:`gnsx.system.GNSSystem.set_schedule_scale`).
+    :meth:`gnsx.training.system.GNSSystem.set_schedule_scale`).
     """
 
     def __init__(self, budget_s: float | None, calibration_steps: int = 200, safety: float = 0.9):

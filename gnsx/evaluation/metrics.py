@@ -20,6 +20,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from gnsx.model.neighbors import particle_spacing  # noqa: F401 (a geometric fact the metrics share)
+
 #: ``earth_movers_distance(method="auto")`` solves exactly up to this many particles (POT's network simplex,
 #: ~1-2 s at WaterRamps' 2.3k on one CPU core), and with Sinkhorn above it (exact grows like N^3).
 EXACT_EMD_MAX_PARTICLES = 3000
@@ -298,29 +300,6 @@ def water_area(position, cell: float) -> float:
         return 0.0
     cells = np.unique(np.floor(position / cell).astype(np.int64), axis=0)
     return float(len(cells) * cell * cell)
-
-
-def particle_spacing(position, neighbours: int = 4) -> float:
-    """Typical distance between neighbouring particles (data units): the median, over the particles, of the
-    mean distance to their ``neighbours`` nearest (fewer when there are not that many).
-
-    With 4 neighbours this gives the lattice spacing s of square, hexagonal and jittered lattices alike
-    (1.00 s on each), and 0.93-1.03 s on MPM frames of the ``small`` and ``waterramps`` presets, settled
-    pools included; the nearest-neighbour distance alone reads 0.5-0.75 s on jittered or MPM particles (which
-    form close pairs). For particles on a line (ramps) pass ``neighbours=1``: the spacing along the line.
-
-    Args:
-        position: ``[N, D]`` positions of one frame; non-finite rows are left out.
-    Returns:
-        the spacing; NaN for fewer than 2 finite particles.
-    """
-    points = _numpy(position).astype(np.float64)
-    points = points[np.isfinite(points).all(1)]
-    k = min(neighbours, len(points) - 1)
-    if k < 1:
-        return float("nan")
-    distance, _ = cKDTree(points).query(points, k=k + 1)
-    return float(np.median(distance[:, 1:].mean(axis=1)))
 
 
 def area_ratio(predicted, true, spacing: float) -> float:

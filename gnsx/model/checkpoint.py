@@ -1,12 +1,12 @@
 """Trained simulators from checkpoints: where a run keeps its weights, reading them safely, checking that
 they fit the run or data at hand, and naming the model.
 
-``train.py`` saves Lightning checkpoints of :class:`~gnsx.system.GNSSystem` (``<run dir>/checkpoints/``);
+``train.py`` saves Lightning checkpoints of :class:`~gnsx.training.system.GNSSystem` (``<run dir>/checkpoints/``);
 every hyperparameter is saved with them, so a checkpoint alone rebuilds its model.
 
 Reading never unpickles arbitrary objects: :func:`read_checkpoint` uses ``torch.load(weights_only=True)``
 (tensors, containers and plain values only; a Lightning checkpoint of gnsx needs nothing else). A bad file
-gets one of three messages (:class:`~gnsx.errors.CheckpointError`): not a checkpoint, truncated, or a
+gets one of three messages (:class:`~gnsx.core.errors.CheckpointError`): not a checkpoint, truncated, or a
 checkpoint of another model config (naming the config it was trained with and the one expected).
 """
 
@@ -22,11 +22,15 @@ from typing import Any
 
 import torch
 
-from gnsx.errors import CheckpointError
+from gnsx.core.errors import CheckpointError
 from gnsx.model.simulator import LearnedSimulator
-from gnsx.system import GNSSystem
 
 #: Model settings that change behaviour at run time only (not the weights, not the training).
+#: The dataset facts a simulator is built with, besides its architecture (``hyper_parameters["model"]``).
+SIMULATOR_FACTS = ("dim", "bounds", "radius", "vel_mean", "vel_std", "acc_mean", "acc_std")
+#: Lightning saves the training module's weights; the simulator is its submodule ``simulator``.
+SIMULATOR_PREFIX = "simulator."
+
 RUNTIME_KEYS = frozenset({"neighbor_search", "cull", "freeze_speed", "compile"})
 #: The checkpoint keys gnsx needs.
 REQUIRED_KEYS = ("state_dict", "hyper_parameters")
@@ -140,7 +144,7 @@ def check_resume(path: str | Path, model: Mapping[str, Any], dim: int, radius: f
     """Read the checkpoint a run resumes from; refuse one of another model config.
 
     Args:
-        model: this run's architecture (:func:`gnsx.pipeline.architecture`).
+        model: this run's architecture (:func:`gnsx.training.pipeline.architecture`).
         dim, radius: this run's data dimension and connectivity radius.
         name: the override that named the checkpoint (``train.ckpt_path``, ``train.init_weights``).
     Returns:
@@ -178,13 +182,19 @@ def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Lear
     state = read_checkpoint(path)
     hparams = dict(state["hyper_parameters"])
     try:
-        system = GNSSystem(**hparams)
-    except (TypeError, ValueError) as error:
+        simulator = simulator_from_hparams(hparams)
+    except (KeyError, TypeError, ValueError) as error:
         raise CheckpointError(
             str(path), f"its hyper-parameters do not build a gnsx model ({error}); another gnsx version?"
         ) from None
+    weights = state["state_dict"]
+    # The training module (gnsx.training.system.GNSSystem) holds the simulator as its only submodule, so
+    # every weight is "simulator.<name>"; anything else is another model's.
+    foreign = [key for key in weights if not key.startswith(SIMULATOR_PREFIX)]
     try:
-        system.load_state_dict(state["state_dict"], strict=True)
+        if foreign:
+            raise RuntimeError(f"weights:\nUnexpected key(s) in state_dict: {', '.join(foreign[:5])}")
+        simulator.load_state_dict({k[len(SIMULATOR_PREFIX) :]: v for k, v in weights.items()}, strict=True)
     except RuntimeError as error:
         problems = [line.strip() for line in str(error).splitlines()[1:] if line.strip()]
         first = problems[0] if problems else str(error).splitlines()[0]
@@ -193,7 +203,17 @@ def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Lear
             f"its weights are of another model config than its hyper-parameters say "
             f"({describe_model(hparams['model'])}): {len(problems)} problem(s), first: {first[:200]}",
         ) from None
-    return system.simulator.to(device).eval()
+    return simulator.to(device).eval()
+
+
+def simulator_from_hparams(hparams: Mapping[str, Any]) -> LearnedSimulator:
+    """The untrained :class:`LearnedSimulator` that a checkpoint's hyper-parameters describe: the dataset facts
+    (:data:`SIMULATOR_FACTS`) plus the architecture (``hparams["model"]``), as the training module builds it.
+
+    Raises:
+        KeyError: a fact is missing; TypeError, ValueError: the arguments do not build a model.
+    """
+    return LearnedSimulator(**{key: hparams[key] for key in SIMULATOR_FACTS}, **hparams["model"])
 
 
 def check_fits(

@@ -18,8 +18,8 @@ import numpy as np
 from matplotlib import colormaps
 from PIL import Image, ImageDraw
 
-from gnsx import metrics
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.evaluation import metrics
 
 BACKGROUND = np.array([12, 14, 28], np.uint8)
 GREY = np.array([150, 150, 150], np.uint8)
@@ -62,7 +62,7 @@ def _viewport(bounds: np.ndarray, size: int) -> tuple[np.ndarray, float]:
 
 def particle_spacing(position: np.ndarray, particle_type: np.ndarray) -> tuple[float | None, float | None]:
     """Typical distance between neighbouring particles (data units): ``(dynamic, static)``, each
-    :func:`gnsx.metrics.particle_spacing` of that kind of particle among its own kind (4 neighbours for
+    :func:`gnsx.model.neighbors.particle_spacing` of that kind of particle among its own kind (4 neighbours for
     water, whose nearest-neighbour distance alone would size discs that leave gaps; 1 for the static
     particles on ramps, the spacing along the line). None where fewer than 2 have finite positions.
     """

@@ -2,8 +2,8 @@
 the logic of the ``evaluate.py`` entry point (:func:`evaluate_checkpoints`: many checkpoints, rollout files,
 pictures, paired comparisons).
 
-Both are built on the scoring library :mod:`gnsx.scoring` (rollouts, metrics and their spread over
-trajectories) and :mod:`gnsx.checkpoints`; models are compared with :func:`gnsx.spread.compare`.
+Both are built on the scoring library :mod:`gnsx.evaluation.scoring` (rollouts, metrics and their spread over
+trajectories) and :mod:`gnsx.model.checkpoint`; models are compared with :func:`gnsx.evaluation.spread.compare`.
 """
 
 from __future__ import annotations
@@ -15,13 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.atomic import write_json
-from gnsx.checkpoints import check_fits, load_simulator, model_label, slug
+from gnsx.core.atomic import write_json
+from gnsx.core.errors import ConfigError
 from gnsx.data.metadata import Metadata
-from gnsx.errors import ConfigError
-from gnsx.model.rules import Rules
-from gnsx.model.simulator import LearnedSimulator
-from gnsx.scoring import (
+from gnsx.evaluation.scoring import (
     TrajectoryResult,
     evaluate_simulator,
     format_table,
@@ -30,14 +27,17 @@ from gnsx.scoring import (
     mean_per_frame,
     write_csv,
 )
-from gnsx.spread import compare, format_comparison
+from gnsx.evaluation.spread import compare, format_comparison
+from gnsx.model.checkpoint import check_fits, load_simulator, model_label, slug
+from gnsx.model.rules import Rules
+from gnsx.model.simulator import LearnedSimulator
 
 log = logging.getLogger("gnsx")
 
 
 def render_comparison(first: dict, metadata: Metadata, path: Path, label: str) -> Path:
     """Animation of ground truth next to the model's rollout (same initial frames)."""
-    from gnsx.render import render_rollouts, save_animation
+    from gnsx.evaluation.render import render_rollouts, save_animation
 
     frames = render_rollouts(
         [first["ground_truth"], first["predicted"]],
@@ -158,12 +158,12 @@ def evaluate_checkpoints(
 
     * ``results.json``: ``{"split", "data_root", "rules", "models": [{"label", "folder",
       "checkpoint", "parameters", "summary", "rows"}], "comparisons", "outputs"}`` (summary and rows as
-      :func:`~gnsx.scoring.evaluate_simulator`'s; ``comparisons``: with two or more models, each later model
-      against the first, :func:`~gnsx.spread.compare` on ``rollout_mse`` and ``emd`` plus ``"a"``, ``"b"``
+      :func:`~gnsx.evaluation.scoring.evaluate_simulator`'s; ``comparisons``: with two or more models, each later model
+      against the first, :func:`~gnsx.evaluation.spread.compare` on ``rollout_mse`` and ``emd`` plus ``"a"``, ``"b"``
       (the labels), also printed);
     * per model, in ``<label slug>/``: ``trajectories.csv`` (one row per trajectory), ``per_frame.csv`` (one
-      row per trajectory and predicted frame, see :class:`~gnsx.scoring.TrajectoryResult`),
-      ``rollouts/<split>_<i>.npz`` (gnsx rollout files, :mod:`gnsx.rollout_io`; with ``deepmind`` also
+      row per trajectory and predicted frame, see :class:`~gnsx.evaluation.scoring.TrajectoryResult`),
+      ``rollouts/<split>_<i>.npz`` (gnsx rollout files, :mod:`gnsx.data.rollout_io`; with ``deepmind`` also
       DeepMind's ``.pkl``);
     * with ``render``: ``comparison.<gif|mp4>`` (ground truth and every model side by side, the paper's
       figure 8, on trajectory ``render_trajectory``), ``strip.png`` (frames 0, ``strip_every``, ... one row
@@ -175,18 +175,18 @@ def evaluate_checkpoints(
     Args:
         checkpoints: ``.ckpt`` files or run directories.
         data_root: the gnsx dataset (its metadata gives bounds, dt and the neighbour radius).
-        labels: one per checkpoint (default :func:`~gnsx.checkpoints.model_label`, made unique).
+        labels: one per checkpoint (default :func:`~gnsx.model.checkpoint.model_label`, made unique).
         rules: the simulator's rules on the models' rollouts (:class:`gnsx.model.rules.Rules`; None: all of
             them); recorded in ``results.json``.
         allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
-            connectivity radius more than 2x apart, :func:`~gnsx.checkpoints.check_fits`); refused otherwise.
-        Others: see :func:`~gnsx.scoring.score_trajectory` and :mod:`gnsx.render`.
+            connectivity radius more than 2x apart, :func:`~gnsx.model.checkpoint.check_fits`); refused otherwise.
+        Others: see :func:`~gnsx.evaluation.scoring.score_trajectory` and :mod:`gnsx.evaluation.render`.
     Returns:
         the ``results.json`` payload.
     """
+    from gnsx.data.datamodule import TrajectoryDataset
+    from gnsx.data.rollout_io import Rollout, export_deepmind, save_rollout
     from gnsx.data.store import load_metadata, open_split
-    from gnsx.datamodule import TrajectoryDataset
-    from gnsx.rollout_io import Rollout, export_deepmind, save_rollout
 
     out_dir = Path(out_dir)
     if labels is not None and len(labels) != len(checkpoints):
@@ -295,7 +295,7 @@ def evaluate_checkpoints(
                 results["comparisons"].append({"a": first["label"], "b": model["label"], **comparison})
 
     if render and shown is not None:
-        from gnsx.render import render_rollouts, save_animation, save_frame, save_strip, speeds
+        from gnsx.evaluation.render import render_rollouts, save_animation, save_frame, save_strip, speeds
 
         bounds = metadata.bounds_array()
         rollouts = [shown["ground_truth"], *panels]

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from gnsx.atomic import atomic_path
-from gnsx.errors import DataError
+from gnsx.core.atomic import atomic_path
+from gnsx.core.errors import DataError
 
 _REQUIRED = ("predicted", "particle_type", "input_frames", "metadata")
 DEEPMIND_KEYS = (

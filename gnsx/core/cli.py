@@ -2,16 +2,16 @@
 
 Two wrappers, one policy:
 
-* :func:`run_main` wraps an argparse ``main(argv) -> int`` (``python -m gnsx.data``, ``gnsx.pretrained``,
-  ``gnsx.throughput``; ``gnsx.report`` and ``gnsx.benchmark`` can adopt it the same way);
+* :func:`run_main` wraps an argparse ``main(argv) -> int`` (``python -m gnsx.data``, ``gnsx.training.export``,
+  ``gnsx.perf.throughput``; ``gnsx.evaluation.report`` and ``gnsx.perf.benchmark`` can adopt it the same way);
 * :func:`run_hydra` runs a ``@hydra.main`` function as a script (``train.py``, ``evaluate.py``,
   ``simulate.py``). It sets ``HYDRA_FULL_ERROR=1`` so Hydra re-raises instead of printing its own
   multi-line report, and prints a composition error (bad override, unknown config group option) as one
-  line; :func:`hydra_task` decorates the task function itself, so a :class:`~gnsx.errors.GnsxError` (or a
+  line; :func:`hydra_task` decorates the task function itself, so a :class:`~gnsx.core.errors.GnsxError` (or a
   missing mandatory value) it raises is printed once, before Hydra's "Error executing job" line, and a
-  :class:`~gnsx.errors.RunFailed` (training diverged) is one line with exit status 1.
+  :class:`~gnsx.core.errors.RunFailed` (training diverged) is one line with exit status 1.
 
-User errors are :class:`~gnsx.errors.GnsxError`, Hydra's composition errors and whatever extra types a caller
+User errors are :class:`~gnsx.core.errors.GnsxError`, Hydra's composition errors and whatever extra types a caller
 names. Anything else is a bug and keeps its traceback. ``--debug`` (removed from the arguments before they
 are parsed) or ``GNSX_DEBUG=1`` shows the traceback of user errors too (for Hydra scripts, so does setting
 ``HYDRA_FULL_ERROR=1`` yourself).
@@ -29,11 +29,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from gnsx.errors import ConfigError, GnsxError, RunFailed
+from gnsx.core.errors import ConfigError, GnsxError, RunFailed
 
 #: Exit status of every entry point on bad input (argparse's too).
 EXIT_BAD_INPUT = 2
-#: Exit status of a run that failed without a bug (:class:`~gnsx.errors.RunFailed`, e.g. diverged).
+#: Exit status of a run that failed without a bug (:class:`~gnsx.core.errors.RunFailed`, e.g. diverged).
 EXIT_RUN_FAILED = 1
 DEBUG_FLAG = "--debug"
 DEBUG_ENV = "GNSX_DEBUG"

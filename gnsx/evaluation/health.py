@@ -16,9 +16,9 @@ import sys
 
 import numpy as np
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
-from gnsx.metrics import out_of_bounds
+from gnsx.evaluation.metrics import out_of_bounds
 from gnsx.model.boundary import Boundary
 
 #: A dynamic particle faster than this many velocity standard deviations (per frame) means a blow-up.

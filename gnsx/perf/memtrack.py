@@ -1,6 +1,6 @@
 """Exact, deterministic accounting of the memory torch tensors hold, and what a rollout needs.
 
-Why not the process's peak RSS (what :func:`gnsx.benchmark.measure_inference` reports on the CPU): glibc
+Why not the process's peak RSS (what :func:`gnsx.evaluation.timing.measure_inference` reports on the CPU): glibc
 keeps freed heap and reuses it without the RSS moving, and other work in the same process (a test suite)
 shifts it, so a comparison of two RSS peaks can neither prove nor disprove growth of a few MB. Here every
 aten operation run inside :class:`TensorMemoryTracker` is seen (a ``TorchDispatchMode``), each storage it

@@ -11,8 +11,8 @@ and loses at most ``train.checkpoint_every_minutes`` of training:
   another filesystem: a kill during the copy leaves a truncated ``last.ckpt``.
 * :func:`wall_clock_checkpoint` saves ``last.ckpt`` every N minutes of wall time, besides the step-based
   checkpoints (a slow run with the default 1,000-step interval could otherwise run an hour unsaved).
-* :class:`Heartbeat` refreshes ``results.json``'s liveness fields (:mod:`gnsx.runstate`) every
-  :data:`~gnsx.runstate.HEARTBEAT_S`, so the next run or the report can tell a killed job from a running one.
+* :class:`Heartbeat` refreshes ``results.json``'s liveness fields (:mod:`gnsx.core.runstate`) every
+  :data:`~gnsx.core.runstate.HEARTBEAT_S`, so the next run or the report can tell a killed job from a running one.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
-from gnsx.atomic import atomic_path
-from gnsx.runstate import HEARTBEAT_S, liveness
+from gnsx.core.atomic import atomic_path
+from gnsx.core.runstate import HEARTBEAT_S, liveness
 
 #: Marks a ``map_location`` the caller did not give (None is a value torch.load takes).
 _KEEP = object()

@@ -12,14 +12,12 @@ from typing import Any
 import lightning as L
 import torch
 
-from gnsx.constants import KINEMATIC_PARTICLE_ID
-from gnsx.metrics import position_mse
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.evaluation.scoring import evaluate_trajectory
+from gnsx.model.checkpoint import simulator_from_hparams
 from gnsx.model.mirror import random_mirror
-from gnsx.model.rollout import rollout
-from gnsx.model.simulator import LearnedSimulator
-from gnsx.numerics import SkippedSteps, drop_gradients, finite_gradients
-from gnsx.schedule import learning_rate, noise_std, warmup_factor
-from gnsx.scoring import onestep_mse
+from gnsx.training.numerics import SkippedSteps, drop_gradients, finite_gradients
+from gnsx.training.schedule import learning_rate, noise_std, warmup_factor
 
 #: Training losses on the normalised acceleration (``train.loss``).
 LOSSES = ("mse", "huber")
@@ -76,15 +74,15 @@ class GNSSystem(L.LightningModule):
         mirror: train on each sample or its left-right reflection, with probability 1/2
             (:mod:`gnsx.model.mirror`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
-        lr_warmup_steps: linear LR ramp over the first steps (:func:`gnsx.schedule.warmup_factor`; 0: none).
+        lr_warmup_steps: linear LR ramp over the first steps (:func:`gnsx.training.schedule.warmup_factor`; 0: none).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
             ``"huber"`` (squared below ``huber_delta``, linear above, on the error vector's length; see
             :func:`acceleration_loss`).
         huber_delta: where the Huber loss turns linear, in normalised-acceleration units.
-        max_skipped_steps: training stops (:class:`~gnsx.numerics.Diverged`) after more than this many
+        max_skipped_steps: training stops (:class:`~gnsx.training.numerics.Diverged`) after more than this many
             optimizer steps in a row were skipped for a NaN/Inf loss or gradient (0: never); a skipped step
-            leaves every weight untouched (:mod:`gnsx.numerics`).
+            leaves every weight untouched (:mod:`gnsx.training.numerics`).
     """
 
     def __init__(
@@ -126,21 +124,14 @@ class GNSSystem(L.LightningModule):
         self.skipped = SkippedSteps(max_skipped_steps)
         self._skipping = False  # the current step was skipped
         # Training samples (graphs) the weights have seen, counting the run a fine-tune started from
-        # (``gnsx.pipeline.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
+        # (``gnsx.training.pipeline.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
         # is measured in samples, whatever the batch size or the number of runs (tests/test_pretrained.py).
         # Per process under DDP, and a resumed run of a checkpoint from before 2026-12-03 counts from 0:
         # both undercount, so the budget rule can only be stricter.
         self.samples_seen = 0
-        self.simulator = LearnedSimulator(
-            dim=dim,
-            bounds=bounds,
-            radius=radius,
-            vel_mean=vel_mean,
-            vel_std=vel_std,
-            acc_mean=acc_mean,
-            acc_std=acc_std,
-            **model,
-        )
+        # One construction path for training and for loading (gnsx.model.checkpoint): the saved
+        # hyper-parameters alone rebuild this simulator.
+        self.simulator = simulator_from_hparams(self.hparams)
 
     # -- schedules -------------------------------------------------------------------------------------------
     def _lr_kwargs(self) -> dict:
@@ -158,7 +149,7 @@ class GNSSystem(L.LightningModule):
 
     def set_schedule_scale(self, factor: float) -> None:
         """Compress (``factor < 1``) the LR and noise schedule in steps, e.g. to fit a run shortened to
-        ``factor`` of its steps by :class:`gnsx.time_budget.TimeBudget`. Both are read at every step."""
+        ``factor`` of its steps by :class:`gnsx.training.time_budget.TimeBudget`. Both are read at every step."""
         if not factor > 0:
             raise ValueError(f"set_schedule_scale: factor must be > 0, got {factor}")
         self.schedule_scale = float(factor)
@@ -211,7 +202,7 @@ class GNSSystem(L.LightningModule):
         size = int(batch.num_graphs)
         self.samples_seen += size
         bad = not bool(torch.isfinite(loss.detach()))
-        # Every rank skips together (gnsx.numerics); a single process decides alone.
+        # Every rank skips together (gnsx.training.numerics); a single process decides alone.
         if bool(self.trainer.strategy.reduce_boolean_decision(bad, all=False)):
             self._skip(f"loss is {float(loss.detach()):g}")
             # A zero loss on the parameters alone: backward (and DDP's all-reduce) run on finite zeros, and
@@ -250,7 +241,7 @@ class GNSSystem(L.LightningModule):
 
     # -- validation: full rollouts ---------------------------------------------------------------------
     def validation_step(self, trajectory: dict, batch_idx: int) -> None:
-        # Rollouts are scored in fp32 whatever the training precision (gnsx.precision): under bf16-mixed,
+        # Rollouts are scored in fp32 whatever the training precision (gnsx.training.precision): under bf16-mixed,
         # Lightning's autocast would otherwise reach the rollout, and the checkpoint choice would rest on
         # bf16 rollouts that evaluation never runs.
         with torch.autocast(self.device.type, enabled=False):
@@ -263,30 +254,3 @@ class GNSSystem(L.LightningModule):
         for name, value in metrics.items():
             # sync_dist: under DDP each rank rolls out its share of the trajectories; log their mean.
             self.log(f"val/{name}", value, batch_size=1, prog_bar=name == "rollout_mse", sync_dist=True)
-
-
-@torch.inference_mode()
-def evaluate_trajectory(
-    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, onestep_stride: int = 10
-) -> dict[str, float]:
-    """Rollout and one-step position MSE of one trajectory (the validation metrics).
-
-    Args:
-        position: ``[T, N, D]`` ground-truth positions.
-        particle_type: ``[N]``.
-    Returns:
-        ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
-        starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
-        steps from ground-truth inputs on every ``onestep_stride``-th frame
-        (:func:`gnsx.scoring.onestep_mse`).
-    """
-    frames = simulator.input_frames
-    position = position.to(simulator.acc_std.device)
-    particle_type = particle_type.to(position.device)
-    dynamic = particle_type != KINEMATIC_PARTICLE_ID
-    initial = position[:frames].transpose(0, 1)
-    predicted = rollout(simulator, initial, particle_type, position.shape[0] - frames)
-    return {
-        "rollout_mse": position_mse(predicted, position[frames:], dynamic),
-        "onestep_mse": onestep_mse(simulator, position, particle_type, stride=onestep_stride),
-    }

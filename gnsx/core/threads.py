@@ -4,11 +4,11 @@ Why not torch's default (one thread per core): its OpenMP threads spin-wait for 
 operation, and when other processes hold some of the cores a waiting thread burns its core while the thread
 it waits for is not scheduled. Measured on this repository's 2-core machine with other jobs running: the
 demo trained at 1.8 steps/s with torch's default of 2 threads and at 8.8 steps/s with 1 thread (issue 11);
-``python -m gnsx.throughput --data data/small --batch-size 2`` at load ~3 ran 11.2-14.5 steps/s with 1
+``python -m gnsx.perf.throughput --data data/small --batch-size 2`` at load ~3 ran 11.2-14.5 steps/s with 1
 thread, and with 2 threads did not finish 70 steps in 200 s. A run on an idle machine loses by the same rule
 only what the idle core would have added (~1.6x at most here). ``OMP_WAIT_POLICY=PASSIVE`` (waiting threads
 sleep instead of spinning) ran 2 threads at 11.3 steps/s at load ~3, but on an idle machine it halved the
-training loop (``python -m gnsx.throughput --data data/small --batch-size 2 --threads 2 --steps 150``:
+training loop (``python -m gnsx.perf.throughput --data data/small --batch-size 2 --threads 2 --steps 150``:
 6.7 steps/s against 14.1 with OpenMP's default), so gnsx does not set it; load that arrives after the choice
 is not handled (set ``threads=1`` or ``OMP_WAIT_POLICY=PASSIVE`` yourself on a machine you share).
 
@@ -98,12 +98,12 @@ def apply_threads(setting: int | str | None, processes: int = 1) -> int:
     count torch uses.
 
     Every CLI that computes with torch calls this first, so it also applies the process's CPU memory
-    policy (:func:`gnsx.allocator.retain_freed_memory`: large tensors reuse freed memory instead of being
+    policy (:func:`gnsx.core.allocator.retain_freed_memory`: large tensors reuse freed memory instead of being
     page-faulted in again every frame).
     """
     import torch
 
-    from gnsx.allocator import retain_freed_memory
+    from gnsx.core.allocator import retain_freed_memory
 
     retain_freed_memory()
 

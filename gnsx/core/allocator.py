@@ -57,5 +57,5 @@ def retain_freed_memory() -> bool:
     # mallopt returns 1 on success. A trim threshold of INT_MAX (2 GiB) keeps any realistic free top chunk.
     _applied = bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
     if _applied:
-        log.debug("glibc malloc: mmap off, trimming off (gnsx.allocator)")
+        log.debug("glibc malloc: mmap off, trimming off (gnsx.core.allocator)")
     return _applied

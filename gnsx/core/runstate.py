@@ -3,10 +3,10 @@ says who it is and when it was last seen, and a reader decides.
 
 While it runs, ``results.json`` holds ``"status": "running"`` with ``"pid"``, ``"pid_start"`` (the process's
 start time, so a reused pid is not mistaken for it), ``"host"`` and ``"heartbeat"`` (Unix seconds, refreshed
-every :data:`HEARTBEAT_S` by :class:`gnsx.resilience.Heartbeat`). :func:`effective_status` turns such a
+every :data:`HEARTBEAT_S` by :class:`gnsx.training.resilience.Heartbeat`). :func:`effective_status` turns such a
 record into ``"interrupted"`` when its process is gone (same host) or its heartbeat is older than
 :data:`STALE_S` (another host); :func:`mark_interrupted` writes that verdict back. ``train.py`` applies it to
-the run directory it starts in and to the run it resumes from; ``python -m gnsx.report`` should read a job's
+the run directory it starts in and to the run it resumes from; ``python -m gnsx.evaluation.report`` should read a job's
 status through :func:`effective_status`.
 
 Standard library only, so readers (the report) need neither torch nor Lightning.
@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gnsx.atomic import write_json
+from gnsx.core.atomic import write_json
 
 #: Seconds between heartbeats of a running job.
 HEARTBEAT_S = 30.0

@@ -4,11 +4,11 @@ grouping.
 
 This is the one module that reads the composed config; everything it calls takes typed arguments.
 
-Every run writes ``results.json`` into its run directory (schema in :mod:`gnsx.report`): ``"status":
-"running"`` when it starts (with its pid, host and a heartbeat, :mod:`gnsx.runstate`), ``"ok"`` or
+Every run writes ``results.json`` into its run directory (schema in :mod:`gnsx.evaluation.report`): ``"status":
+"running"`` when it starts (with its pid, host and a heartbeat, :mod:`gnsx.core.runstate`), ``"ok"`` or
 ``"failed"`` (with a one-line ``"error"``) when it ends, ``"interrupted"`` when a later run or reader finds
 it killed. Bad input is refused before anything is written (:func:`check_inputs`). A job whose training
-diverges (too many NaN/Inf steps in a row, :mod:`gnsx.numerics`) or whose test rollout becomes NaN/Inf
+diverges (too many NaN/Inf steps in a row, :mod:`gnsx.training.numerics`) or whose test rollout becomes NaN/Inf
 fails with an error starting ``"diverged:"``. In a Hydra
 multirun a failed job returns NaN instead of raising, so the other jobs of the sweep still run (Hydra's
 launchers stop the whole sweep at the first exception); a single run re-raises after recording. Sweep configs
@@ -34,23 +34,28 @@ from lightning.fabric.utilities.rank_zero import rank_zero_only
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx import runstate
-from gnsx.atomic import write_json
-from gnsx.checkpoints import check_resume, checkpoint_path, read_checkpoint
-from gnsx.config_checks import check_train_config
-from gnsx.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core import runstate
+from gnsx.core.atomic import write_json
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.errors import ConfigError, GnsxError, RunFailed
+from gnsx.core.threads import apply_threads
+from gnsx.data.datamodule import ParticleDataModule
 from gnsx.data.metadata import Metadata
-from gnsx.datamodule import ParticleDataModule
-from gnsx.errors import ConfigError, GnsxError, RunFailed
-from gnsx.evaluate import evaluate_run
+from gnsx.evaluation.evaluate import evaluate_run
+from gnsx.evaluation.scoring import gravity_per_frame
+from gnsx.model.checkpoint import check_resume, checkpoint_path, read_checkpoint
 from gnsx.model.simulator import LearnedSimulator
-from gnsx.numerics import Diverged
-from gnsx.precision import resolve_precision
-from gnsx.resilience import AtomicCheckpointIO, Heartbeat, remove_stale_temporaries, wall_clock_checkpoint
-from gnsx.scoring import gravity_per_frame
-from gnsx.system import GNSSystem, samples_of
-from gnsx.threads import apply_threads
-from gnsx.time_budget import TimeBudget, TrainingClock, parse_duration
+from gnsx.training.config_checks import check_train_config
+from gnsx.training.numerics import Diverged
+from gnsx.training.precision import resolve_precision
+from gnsx.training.resilience import (
+    AtomicCheckpointIO,
+    Heartbeat,
+    remove_stale_temporaries,
+    wall_clock_checkpoint,
+)
+from gnsx.training.system import GNSSystem, samples_of
+from gnsx.training.time_budget import TimeBudget, TrainingClock, parse_duration
 
 log = logging.getLogger("gnsx")
 
@@ -71,7 +76,7 @@ def architecture(model_cfg: DictConfig) -> dict[str, Any]:
 
 def model_arguments(model_cfg: DictConfig, meta: Metadata) -> dict[str, Any]:
     """:func:`architecture` plus what the data decides: the pairwise decoder's gravity (the baseline's
-    ``g dt^2`` from the data's ``dt``, :func:`gnsx.scoring.gravity_per_frame`) unless the config sets one."""
+    ``g dt^2`` from the data's ``dt``, :func:`gnsx.evaluation.scoring.gravity_per_frame`) unless the config sets one."""
     model = architecture(model_cfg)
     if model.get("decoder") == "pairwise" and model.get("gravity") is None:
         model["gravity"] = gravity_per_frame(meta).tolist()
@@ -160,7 +165,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
 def samples_before(path: Path, state: dict) -> tuple[int, str]:
     """Training samples the weights of checkpoint ``path`` (loaded as ``state``) have seen, and how we know.
 
-    Checkpoints since 2026-12-03 record the count (:func:`gnsx.system.samples_of`). For an older one (the
+    Checkpoints since 2026-12-03 record the count (:func:`gnsx.training.system.samples_of`). For an older one (the
     shipped ``pretrained/small`` among them) it is estimated as its ``global_step`` times the batch size of
     the config that trained it: ``config.yaml`` beside the file (shipped weights) or the run's
     ``.hydra/config.yaml`` above ``checkpoints/[permanent/]``. Without either it is 0, which can only make the
@@ -226,7 +231,7 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
 
     Checkpoints (``run_dir/checkpoints/``): the 5 most recent every ``train.checkpoint_every_n_steps``,
     permanent ones every ``train.permanent_every_n_steps``, and ``last.ckpt`` also every
-    ``train.checkpoint_every_minutes`` of wall time; all written atomically (:mod:`gnsx.resilience`).
+    ``train.checkpoint_every_minutes`` of wall time; all written atomically (:mod:`gnsx.training.resilience`).
     ``train.gradient_clip_val`` clips the gradient norm (null: no clipping).
     """
     train = cfg.train
@@ -258,7 +263,7 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
     requested = trainer_args.get("precision", "32-true")
     trainer_args["precision"] = resolve_precision(requested, trainer_args.get("accelerator", "auto"))
     if str(requested) == "auto":
-        log.info("Precision: %s (trainer.precision=auto, gnsx.precision)", trainer_args["precision"])
+        log.info("Precision: %s (trainer.precision=auto, gnsx.training.precision)", trainer_args["precision"])
     return L.Trainer(
         **trainer_args,
         plugins=[AtomicCheckpointIO()],
@@ -278,7 +283,7 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
 
 
 # -- one job: timing, divergence, results --------------------------------------------------------------------
-# Diverged lives in gnsx.numerics (the system raises it after too many non-finite steps in a row); callers
+# Diverged lives in gnsx.training.numerics (the system raises it after too many non-finite steps in a row); callers
 # that caught it from this module still can.
 
 
@@ -368,16 +373,16 @@ def benchmark_at_scale(
     warmup: int,
     repeats: int,
 ) -> dict[str, Any]:
-    """Inference speed and peak memory of one step (graph build included, :func:`gnsx.benchmark.
+    """Inference speed and peak memory of one step (graph build included, :func:`gnsx.perf.benchmark.
     measure_inference`) on a packed scene of ``num_particles`` (WaterRamps' largest scenes have ~2.3k) at the
     data's particle spacing, so each particle has as many neighbours as in training.
 
     When that many particles do not fit in the data's domain at its spacing (the small preset's particles are
     coarse), the domain is enlarged by steps of 25%: speed and memory do not depend on where the walls are.
 
-    Returns :func:`~gnsx.benchmark.measure_inference`'s dict plus ``spacing`` and ``domain_scale``.
+    Returns :func:`~gnsx.evaluation.timing.measure_inference`'s dict plus ``spacing`` and ``domain_scale``.
     """
-    from gnsx.benchmark import measure_inference, packed_scene
+    from gnsx.evaluation.timing import measure_inference, packed_scene
 
     bounds = metadata.bounds_array().astype(np.float64)  # [D, 2]
     extent = bounds[:, 1] - bounds[:, 0]
@@ -410,8 +415,8 @@ def render_test_frame(
     """
     import imageio.v3 as iio
 
+    from gnsx.evaluation.render import render_frame, speeds
     from gnsx.model.rollout import rollout
-    from gnsx.render import render_frame, speeds
 
     position, particle_type = trajectory["position"], trajectory["particle_type"]
     frames = simulator.input_frames
@@ -540,7 +545,7 @@ def _train_and_evaluate(
     """Train, then evaluate on the test split; fills ``record`` and ``loggers`` as it goes (they survive a
     failure). Returns the test rollout MSE (None when evaluation is off)."""
     # Parallel sweep jobs on one machine (the joblib launcher) set sweep.torch_threads: n_jobs x threads
-    # should not exceed the cores. Otherwise `threads` (auto: gnsx.threads).
+    # should not exceed the cores. Otherwise `threads` (auto: gnsx.core.threads).
     threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None) or cfg.get("threads")
     record["threads"] = apply_threads(threads, processes=local_processes(cfg))
     L.seed_everything(int(cfg.seed), workers=True)
@@ -601,11 +606,11 @@ def run_training(cfg: DictConfig) -> float | None:
     """Train, then evaluate on the test split; returns the test rollout MSE (None when evaluation is off).
 
     Checks every input first (:func:`check_inputs`): bad input raises a one-line
-    :class:`~gnsx.errors.GnsxError` before anything is written (a multirun job records it and returns
+    :class:`~gnsx.core.errors.GnsxError` before anything is written (a multirun job records it and returns
     NaN). Then writes ``results.json`` (see the module docstring), "running" with the process's liveness
-    (:mod:`gnsx.runstate`) and a heartbeat while it trains; a killed earlier run in this directory, and the
+    (:mod:`gnsx.core.runstate`) and a heartbeat while it trains; a killed earlier run in this directory, and the
     run this one resumes from, are marked "interrupted". In a multirun a failed job returns NaN; a single run
-    re-raises (``gnsx.cli`` prints bad input and divergence as one line).
+    re-raises (``gnsx.core.cli`` prints bad input and divergence as one line).
     """
     start = time.perf_counter()
     hydra_cfg = HydraConfig.get()
@@ -646,7 +651,7 @@ def run_training(cfg: DictConfig) -> float | None:
     except Exception as error:  # a sweep job records any failure and lets the other jobs run
         reason = as_divergence(error)
         record["status"], record["error"] = "failed", one_line(reason)
-        expected = isinstance(reason, GnsxError | RunFailed)  # one line (gnsx.cli), no traceback
+        expected = isinstance(reason, GnsxError | RunFailed)  # one line (gnsx.core.cli), no traceback
         if identity["multirun"]:
             log.error("Job %s failed: %s", identity["name"], record["error"], exc_info=not expected)
         elif not expected:

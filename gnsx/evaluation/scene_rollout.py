@@ -32,9 +32,9 @@ import numpy as np
 import torch
 import yaml
 
+from gnsx.core.errors import DataError
 from gnsx.data.metadata import Metadata
-from gnsx.errors import DataError
-from gnsx.health import rollout_health, warn_if_unhealthy
+from gnsx.evaluation.health import rollout_health, warn_if_unhealthy
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.generate import check_scene, initial_state
@@ -188,22 +188,22 @@ def simulate_to_folder(
 ) -> dict:
     """:func:`rollout_scene`, then write everything a user looks at into ``out_dir``.
 
-    Files: ``scene.yaml`` (the scene as run), ``rollout.npz`` (gnsx rollout file, :mod:`gnsx.rollout_io`;
+    Files: ``scene.yaml`` (the scene as run), ``rollout.npz`` (gnsx rollout file, :mod:`gnsx.data.rollout_io`;
     with the ground truth it holds ``ground_truth`` too), ``rollout.<gif|mp4>`` (the model alone, coloured by
     speed), ``strip.png`` (frames 0, ``strip_every``, ...). With ``ground_truth``: ``comparison.<gif|mp4>``
     (MPM | model side by side), ``rollout.pkl`` (DeepMind's rollout format) and ``errors.json``
-    (:func:`gnsx.scoring.rollout_errors`: position MSE, EMD, kinetic-energy error, neighbour ratio, ...).
+    (:func:`gnsx.evaluation.scoring.rollout_errors`: position MSE, EMD, kinetic-energy error, neighbour ratio, ...).
 
     Returns:
         ``{"out_dir", "particles", "frames", "history_source", "health": {...}, "blew_up", "files": {...},
-        "errors": {...} (with ground truth)}``; ``health`` is :func:`gnsx.health.rollout_health` (a warning
+        "errors": {...} (with ground truth)}``; ``health`` is :func:`gnsx.evaluation.health.rollout_health` (a warning
         line goes to stderr when the rollout blew up).
     """
     import json
 
-    from gnsx.render import render_rollouts, save_animation, save_strip
-    from gnsx.rollout_io import Rollout, export_deepmind, save_rollout
-    from gnsx.scoring import json_ready, rollout_errors
+    from gnsx.data.rollout_io import Rollout, export_deepmind, save_rollout
+    from gnsx.evaluation.render import render_rollouts, save_animation, save_strip
+    from gnsx.evaluation.scoring import json_ready, rollout_errors
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

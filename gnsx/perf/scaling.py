@@ -6,14 +6,14 @@ of N water particles at WaterRamps' spacing (0.009) and radius (0.015) in a box 
 stay those of WaterRamps at 2.3k, so the work per particle is constant and a linear-cost simulator takes
 ``N / 2300`` times its 2.3k time. Measured per size, model and mode:
 
-* **inference**: :func:`gnsx.benchmark.measure_inference` (one ``predict_positions``: neighbour search, graph,
+* **inference**: :func:`gnsx.evaluation.timing.measure_inference` (one ``predict_positions``: neighbour search, graph,
   features, network, integration; median after warm-up) and its peak memory;
 * **training**: :func:`measure_training`, one optimizer step on a batch of ``batch_size`` scenes (the
-  trainer's default 2) through :class:`gnsx.system.GNSSystem`'s loss path: ``noisy_training_pair`` with its
-  noise std, :func:`gnsx.system.acceleration_loss` over the water, backward, and the optimizer of
+  trainer's default 2) through :class:`gnsx.training.system.GNSSystem`'s loss path: ``noisy_training_pair`` with its
+  noise std, :func:`gnsx.training.system.acceleration_loss` over the water, backward, and the optimizer of
   ``GNSSystem.configure_optimizers`` (fused Adam and its LR schedule); only Lightning's logging and its
   NaN-step bookkeeping are left out. Its "ms/frame" is ms per step / batch size;
-* particle-steps per second, matmul FLOPs per frame from :mod:`gnsx.flops` and the achieved GFLOP/s, next to
+* particle-steps per second, matmul FLOPs per frame from :mod:`gnsx.perf.flops` and the achieved GFLOP/s, next to
   the fp32 matmul peak of the same device and thread count measured in the same run (:func:`matmul_peak`, at
   the start and at the end: load from other processes shows as a difference);
 * the linearity ratio ``ms(N_max) / (N_max / N_ref * ms(N_ref))`` per model and mode, N_ref the size nearest
@@ -40,18 +40,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gnsx.benchmark import (
-    MODELS,
-    WATERRAMPS,
-    _markdown,
-    build_model,
-    measure_inference,
-    memory_peak,
-    memory_start,
-    packed_scene,
-)
-from gnsx.constants import KINEMATIC_PARTICLE_ID
-from gnsx.flops import forward_flops, training_flops
+from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.data.waterramps import WATERRAMPS
+from gnsx.evaluation.timing import measure_inference, memory_peak, memory_start, packed_scene
+from gnsx.model.registry import MODELS, build_model
+from gnsx.perf.flops import forward_flops, training_flops
 
 #: Sizes of ``make bench`` (particles per scene); a GPU adds :data:`CUDA_EXTRA_SIZES`.
 DEFAULT_SIZES = (1_000, 2_300, 10_000, 100_000)
@@ -81,7 +74,7 @@ def scaling_scene(
 ) -> tuple[torch.Tensor, torch.Tensor, list[list[float]]]:
     """N water particles at rest in the lower-left corner of a square box of side :func:`scaling_side`.
 
-    The water is :func:`gnsx.benchmark.packed_scene`'s square block (a jittered lattice of ``spacing``, no
+    The water is :func:`gnsx.evaluation.timing.packed_scene`'s square block (a jittered lattice of ``spacing``, no
     ramps) with its lowest row and leftmost column one spacing from the floor and the left wall. The walls
     move out with N: the block keeps touching two walls (so the wall features take the same values on its
     bottom and left rows) and the box keeps the same share of empty space (so the top and right walls stay as
@@ -102,7 +95,7 @@ def scaling_scene(
 
 def training_batch(num_particles: int, history: int, batch_size: int, spacing: float, seed: int = 0):
     """A training batch like the trainer's: ``batch_size`` scenes of :func:`scaling_scene` (different
-    jitter), collated by PyG's ``Batch`` as :class:`gnsx.datamodule.FrameDataset`'s samples are.
+    jitter), collated by PyG's ``Batch`` as :class:`gnsx.data.datamodule.FrameDataset`'s samples are.
 
     Returns:
         the ``Batch`` (``position_sequence``, ``next_position`` = the last position, ``particle_type``,
@@ -122,9 +115,9 @@ def training_batch(num_particles: int, history: int, batch_size: int, spacing: f
 def build_system(
     name: str, bounds: Sequence[Sequence[float]], radius: float = WATERRAMPS["radius"], compile: bool = False
 ):
-    """An untrained :class:`gnsx.system.GNSSystem` of a :data:`gnsx.benchmark.MODELS` config with WaterRamps'
+    """An untrained :class:`gnsx.training.system.GNSSystem` of a :data:`gnsx.model.registry.MODELS` config with WaterRamps'
     statistics in ``bounds`` (``compile``: the ``model.compile`` switch)."""
-    from gnsx.system import GNSSystem
+    from gnsx.training.system import GNSSystem
 
     facts = {k: WATERRAMPS[k] for k in ("vel_mean", "vel_std", "acc_mean", "acc_std")}
     bounds = [list(pair) for pair in bounds]
@@ -133,7 +126,7 @@ def build_system(
 
 def training_step(system, batch, optimizer, scheduler=None) -> torch.Tensor:
     """One optimizer step of ``GNSSystem.training_step``'s loss path (module docstring); returns the loss."""
-    from gnsx.system import acceleration_loss
+    from gnsx.training.system import acceleration_loss
 
     optimizer.zero_grad(set_to_none=True)
     predicted, target = system.simulator.noisy_training_pair(
@@ -152,7 +145,7 @@ def training_step(system, batch, optimizer, scheduler=None) -> torch.Tensor:
 
 def measure_training(system, batch, warmup: int = 2, repeats: int = 10) -> dict:
     """Time :func:`training_step` (median of ``repeats`` after ``warmup``) and its peak memory (as
-    :func:`gnsx.benchmark.measure_inference`: CUDA max allocated, or the CPU peak-RSS increase, which here
+    :func:`gnsx.evaluation.timing.measure_inference`: CUDA max allocated, or the CPU peak-RSS increase, which here
     includes Adam's moments, allocated in the first warm-up step).
 
     Returns:
@@ -316,7 +309,7 @@ def run_scaling(
     limit = max_memory_mb if max_memory_mb is not None else memory_limit_mb(dev)
     meta = {
         "date": datetime.now().isoformat(timespec="seconds"),
-        "command": " ".join(["python -m gnsx.benchmark", *sys.argv[1:]]) if sys.argv else "",
+        "command": " ".join(["python -m gnsx.perf.benchmark", *sys.argv[1:]]) if sys.argv else "",
         "device": str(dev),
         "device_name": _device_name(dev),
         "threads": torch.get_num_threads(),
@@ -475,7 +468,7 @@ def format_scaling(results: dict) -> str:
         "ms/frame: median after warm-up, graph build included; training: one optimizer step / batch size. "
         "x linear: ms/frame over N/N_ref x ms/frame at N_ref. Memory: "
         + ("CUDA max allocated" if cuda else "CPU peak-RSS increase (lower bound)"),
-        _markdown(header, cells),
+        markdown_table(header, cells),
     ]
     start, end = meta["matmul_start"], meta["matmul_end"]
     lines.append(
@@ -498,7 +491,7 @@ def format_scaling(results: dict) -> str:
 
 
 def format_rollout_memory(memory: dict) -> str:
-    """One paragraph on :func:`gnsx.memtrack.rollout_memory`'s figures."""
+    """One paragraph on :func:`gnsx.perf.memtrack.rollout_memory`'s figures."""
     rows, growth = memory["rows"], memory["growth"]
     parts = ", ".join(
         f"{r['frames']} frames {r['peak_mb']:.2f} MB (output {r['output_mb']:.2f})" for r in rows
@@ -557,3 +550,9 @@ def plot_scaling(results: dict, path: str | Path) -> Path:
 def default_json_path(device: str) -> Path:
     """``outputs/bench/scaling_<device type>.json``."""
     return Path("outputs/bench") / f"scaling_{torch.device(device).type}.json"
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in rows])

@@ -14,10 +14,10 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from gnsx.cli import check_int, check_number
-from gnsx.errors import ConfigError
+from gnsx.core.cli import check_int, check_number
+from gnsx.core.errors import ConfigError
 
-#: ``trainer.precision`` values: gnsx's ``auto`` (:mod:`gnsx.precision`) and Lightning's own.
+#: ``trainer.precision`` values: gnsx's ``auto`` (:mod:`gnsx.training.precision`) and Lightning's own.
 TRAINER_PRECISIONS = (
     "auto",
     "32-true",
@@ -38,7 +38,7 @@ def _get(cfg: DictConfig, key: str, default: Any = None) -> Any:
 
 
 def check_threads(cfg: DictConfig, key: str = "threads") -> None:
-    """``threads``: null (torch's default), ``auto`` (:func:`gnsx.threads.choose_threads`) or an int >= 1."""
+    """``threads``: null (torch's default), ``auto`` (:func:`gnsx.core.threads.choose_threads`) or an int >= 1."""
     value = _get(cfg, key)
     if value is None or value == "auto":
         return
@@ -56,7 +56,7 @@ def check_seed(cfg: DictConfig, key: str = "seed") -> int:
 
 def check_train_config(cfg: DictConfig) -> None:
     """Every setting of ``train.py`` that can be wrong on its own (the dataset and a resumed checkpoint are
-    checked against each other later, :mod:`gnsx.pipeline`).
+    checked against each other later, :mod:`gnsx.training.pipeline`).
 
     Raises:
         ConfigError: the first bad setting, e.g. ``train.max_steps=0: must be >= 1``.
@@ -86,13 +86,13 @@ def check_train_config(cfg: DictConfig) -> None:
         raise ConfigError(f"train.noise_correction={correction}", "must be in [0, 1]")
     for key in ("gradient_clip_val", "checkpoint_every_minutes"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True, allow_none=True)
-    from gnsx.system import LOSSES
+    from gnsx.training.system import LOSSES
 
     if _get(cfg, "train.loss") not in LOSSES:
         raise ConfigError(f"train.loss={_get(cfg, 'train.loss')}", f"expected one of {', '.join(LOSSES)}")
     max_time = _get(cfg, "train.max_time")
     if max_time is not None:
-        from gnsx.time_budget import parse_duration
+        from gnsx.training.time_budget import parse_duration
 
         try:
             seconds = parse_duration(max_time)

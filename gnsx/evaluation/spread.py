@@ -88,7 +88,7 @@ def compare(
     """Paired comparison of two models on the same trajectories: the geometric mean of ``b / a``.
 
     Args:
-        rows_a, rows_b: per-trajectory rows (:func:`gnsx.scoring.score_trajectory`), paired by their
+        rows_a, rows_b: per-trajectory rows (:func:`gnsx.evaluation.scoring.score_trajectory`), paired by their
             ``trajectory`` index (their position when absent); a pair counts only when both values are finite
             and positive.
         key: the error compared (lower is better), e.g. ``rollout_mse``, ``emd``, ``mse_at_10``.

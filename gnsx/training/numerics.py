@@ -1,6 +1,6 @@
 """Training numerics: a NaN or Inf loss or gradient never reaches the weights.
 
-:class:`~gnsx.system.GNSSystem` checks every step. A step whose loss is not finite is skipped: the training
+:class:`~gnsx.training.system.GNSSystem` checks every step. A step whose loss is not finite is skipped: the training
 step returns a zero loss built from the parameters alone (finite zeros for backward, nothing of the NaN
 graph), and its gradients are dropped (set to None) before the optimizer, so Adam leaves every weight and
 every moment alone. A step whose loss is finite but whose gradients are not has them dropped the same way,
@@ -21,7 +21,7 @@ from collections.abc import Iterable
 
 import torch
 
-from gnsx.errors import RunFailed
+from gnsx.core.errors import RunFailed
 
 log = logging.getLogger("gnsx")
 
