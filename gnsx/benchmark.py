@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.benchmark` still works: the tool is :mod:`gnsx.perf.benchmark` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.benchmark` still works:
+the tool is :mod:`gnsx.perf.benchmark` (README, "Code structure")."""
 
 import runpy
 

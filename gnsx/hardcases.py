@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.hardcases` still works: the tool is :mod:`gnsx.evaluation.hardcases` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.hardcases` still works:
+the tool is :mod:`gnsx.evaluation.hardcases` (README, "Code structure")."""
 
 import runpy
 

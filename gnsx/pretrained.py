@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.pretrained` still works: the tool is :mod:`gnsx.training.export` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.pretrained` still works:
+the tool is :mod:`gnsx.training.export` (README, "Code structure")."""
 
 import runpy
 

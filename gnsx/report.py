@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.report` still works: the tool is :mod:`gnsx.evaluation.report` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.report` still works:
+the tool is :mod:`gnsx.evaluation.report` (README, "Code structure")."""
 
 import runpy
 

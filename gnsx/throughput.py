@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.throughput` still works: the tool is :mod:`gnsx.perf.throughput` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.throughput` still works:
+the tool is :mod:`gnsx.perf.throughput` (README, "Code structure")."""
 
 import runpy
 

@@ -631,8 +631,8 @@ def test_pretrained_throughput_report_benchmark(bad_checkpoints, tmp_path, capsy
         "throughput: --batch-size 0",
     )
     assert message == "error: --batch-size=0: must be >= 1"
-    # gnsx.evaluation.report and gnsx.perf.benchmark through gnsx.core.cli.run_main with their user errors (their __main__ blocks
-    # should call it so: see docs/robustness.md).
+    # gnsx.evaluation.report and gnsx.perf.benchmark through gnsx.core.cli.run_main with their user errors
+    # (their __main__ blocks should call it so: see docs/robustness.md).
     message = _cli(
         report.main,
         [str(tmp_path / "nowhere")],

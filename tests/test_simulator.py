@@ -11,7 +11,7 @@ from gnsx.model.boundary import Boundary
 from gnsx.model.features import edge_features, type_scalar_feature, wall_features
 from gnsx.model.rules import Rules
 
-# WaterRamps metadata (DESIGN.md section 3).
+# WaterRamps metadata (DeepMind's metadata.json; gnsx.data.waterramps).
 METADATA = dict(
     dim=2,
     bounds=[[0.1, 0.9], [0.1, 0.9]],

@@ -5,7 +5,7 @@ Two presets ship:
 * ``waterramps``: DeepMind's WaterRamps sizes (1000/100/100 trajectories x 601 frames, ~1.1k-2.3k particles,
   connectivity radius 0.015) on a 64^2 grid. Measured: ~3.8 s of CPU per trajectory, so ~40 minutes on 2
   idle cores.
-* ``small``: the CPU recipe of DESIGN.md section 6 (32^2 grid, spacing 0.5 dx, 250 frames, radius 0.035):
+* ``small``: a CPU recipe that keeps the MPM stable and cheap (32^2 grid, spacing 0.5 dx, 250 frames, radius 0.035):
   ~1 s of CPU per trajectory. 100/8/16 trajectories, ~2 minutes on 2 cores. Why these counts: 4 test
   trajectories could not rank models (random 4-subsets of 16 gave baseline ratios from 1.19x to 2.27x for
   one model), so the test split has 16 and validation 8; 20 training trajectories were overfitted within the

@@ -2,7 +2,8 @@
 
 A :class:`Scene` is plain data (water blocks and ramp segments, metres and m/s) so a user can write one in a
 YAML file and :meth:`Scene.from_dict` it. :func:`sample_scene` draws scenes in the spirit of DeepMind's
-WaterRamps (DESIGN.md section 3): one rectangular water block, an initial velocity of order 1 m/s in a
+WaterRamps (as its rollouts look; ``gnsx.data.waterramps`` holds its metadata): one rectangular water block, an
+initial velocity of order 1 m/s in a
 random direction, and 1 to 4 static ramps of random length and small angle (sometimes vertical, possibly
 overlapping each other, never inside or touching the water). :func:`scene_particles` fills the blocks with
 randomly placed water particles (a jittered lattice, not a visible grid) and lines each ramp with static

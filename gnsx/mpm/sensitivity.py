@@ -1,4 +1,5 @@
-"""Kept for now so that `python -m gnsx.mpm.sensitivity` still works: the tool is :mod:`gnsx.evaluation.sensitivity` (README, "Code structure")."""
+"""Kept for now so that `python -m gnsx.mpm.sensitivity` still works:
+the tool is :mod:`gnsx.evaluation.sensitivity` (README, "Code structure")."""
 
 import runpy
 

@@ -7,7 +7,8 @@ The cases, each a function returning plain numbers:
 
 * :func:`dam_break`: Martin & Moyce (1952), a square water column of width ``a`` (``n^2 = height / width
   = 1``) collapsing along the floor from the left wall. The surge front ``Z = x / a`` (x from the wall)
-  against ``T = n t sqrt(g / a)``, next to the measured points :data:`MARTIN_MOYCE` (DESIGN.md section 7),
+  against ``T = n t sqrt(g / a)``, next to the measured points :data:`MARTIN_MOYCE`
+  (Martin & Moyce 1952, Phil. Trans. A 244),
   also under grid refinement (:data:`REFINEMENT`). An inviscid solver without the experiment's gate (lifted
   in a finite time) and wall friction runs ahead of them; the shallow-water (Ritter) front speed
   ``2 sqrt(g a)``, i.e. ``Z <= 1 + 2 T``, bounds it above.
@@ -42,7 +43,7 @@ from gnsx.mpm.presets import SOLVER_BEFORE_ISSUE_13, Preset
 from gnsx.mpm.scenes import Scene, WaterBlock, sample_scene, water_particles
 from gnsx.mpm.solver import MLSMPMSolver, SolverSettings
 
-#: Martin & Moyce (1952), n^2 = 1: surge-front points (T, Z) as in DESIGN.md section 7.
+#: Martin & Moyce (1952), n^2 = 1: surge-front points (T, Z), read off their figure for the square column.
 MARTIN_MOYCE = np.array(
     [
         (0.43, 1.11), (0.62, 1.22), (0.80, 1.44), (0.97, 1.67), (1.14, 1.89), (1.29, 2.11),

@@ -115,7 +115,8 @@ def training_batch(num_particles: int, history: int, batch_size: int, spacing: f
 def build_system(
     name: str, bounds: Sequence[Sequence[float]], radius: float = WATERRAMPS["radius"], compile: bool = False
 ):
-    """An untrained :class:`gnsx.training.system.GNSSystem` of a :data:`gnsx.model.registry.MODELS` config with WaterRamps'
+    """An untrained :class:`gnsx.training.system.GNSSystem` of a :data:`gnsx.model.registry.MODELS` config with
+    WaterRamps'
     statistics in ``bounds`` (``compile``: the ``model.compile`` switch)."""
     from gnsx.training.system import GNSSystem
 

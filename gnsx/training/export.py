@@ -148,9 +148,11 @@ def first_at_rest(
     ``check_of(checkpoint)`` gives ``drift_cm``, how far the pool at rest drifts (cm per 100 frames,
     :func:`gnsx.evaluation.hardcases.rest_drift`; under ``target`` to pass), and optionally ``dam_speed`` and
     ``dam_speed_free``, the corner dam's fastest particle with and without the hold
-    (:func:`gnsx.evaluation.hardcases.dam_break_speeds`; :func:`gnsx.evaluation.hardcases.dam_breaks` to pass), and optionally
+    (:func:`gnsx.evaluation.hardcases.dam_break_speeds`; :func:`gnsx.evaluation.hardcases.dam_breaks` to pass), and
+    optionally
     ``fall_error``, a falling block's largest relative error against g
-    (:func:`gnsx.evaluation.hardcases.free_fall_error`; under :data:`gnsx.evaluation.hardcases.FREE_FALL_TOLERANCE` to pass: since
+    (:func:`gnsx.evaluation.hardcases.free_fall_error`; under
+    :data:`gnsx.evaluation.hardcases.FREE_FALL_TOLERANCE` to pass: since
     2026-12-04, when a fine-tune that passed the rest gate missed g by 5.4% and failed the shipped weights'
     test after export).
 
