@@ -40,6 +40,7 @@ def main(cfg: DictConfig) -> None:
     from gnsx.core.threads import apply_threads
     from gnsx.evaluation.scene_rollout import load_scene, simulate_to_folder
     from gnsx.model.checkpoint import check_fits, checkpoint_path, load_simulator, model_label
+    from gnsx.model.rules import Rules
     from gnsx.mpm.presets import PRESETS, get_preset
     from gnsx.mpm.scenes import Scene
 
@@ -78,6 +79,7 @@ def main(cfg: DictConfig) -> None:
         strip_every=int(cfg.render.strip_every),
         strip_count=int(cfg.render.strip_count),
         emd_every=int(cfg.emd_every),
+        rules=Rules.from_config(cfg, "rules"),
     )
     print(json.dumps({k: v for k, v in summary.items() if k != "files"}, indent=2))
     for name, path in summary["files"].items():

@@ -357,8 +357,8 @@ def _train(overrides: list[str], tmp_path, capsys, case: str, dataset: Path | No
         ),
         (
             "train: a rollout rule that is not true or false",
-            "evaluate.rules.hold_rest=maybe",
-            "error: evaluate.rules.hold_rest=maybe: must be true or false",
+            "rules.hold_rest=maybe",
+            "error: rules.hold_rest=maybe: must be true or false",
         ),
         ("train: unknown loss", "train.loss=l1", "error: train.loss=l1: expected one of mse, huber"),
         ("train: bad max_time", "train.max_time=soon", "error: train.max_time=soon: expected DD:HH:MM:SS"),

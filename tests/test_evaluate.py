@@ -38,6 +38,7 @@ from gnsx.evaluation.scoring import (
     summarise,
 )
 from gnsx.model.checkpoint import load_simulator, model_label
+from gnsx.model.rules import Rules
 from gnsx.perf.benchmark import build_model, format_results, measure_inference, packed_scene
 from gnsx.training.system import GNSSystem
 
@@ -373,3 +374,40 @@ def test_evaluate_entry_point_two_checkpoints_side_by_side(tmp_path, tiny_datase
     ]
     assert all(c["verdict"] == "cannot be told apart" and c["trajectories"] == 1 for c in comparisons)
     assert "Paired comparisons with original GNS 8/2" in done.stdout and "± se" in done.stdout
+
+
+def test_the_raw_network_is_the_default_and_rules_only_add_a_labelled_table(
+    tmp_path, tiny_dataset, checkpoints
+):
+    """Every config defaults to the raw network (walls and ramps only); ``rules=production`` adds a second
+    table with the rules beside the raw one, which stays the primary figure (summary, rows, comparisons)."""
+    from hydra import compose, initialize_config_dir
+
+    from gnsx.evaluation.evaluate import evaluate_checkpoints
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        for name in ("config", "evaluate", "simulate"):
+            assert Rules.from_config(compose(config_name=name, overrides=["checkpoint=x"] * (name != "config")),
+                                     "rules") == Rules.none(), name  # fmt: skip
+            production = compose(
+                config_name=name, overrides=["rules=production"] + ["checkpoint=x"] * (name != "config")
+            )
+            assert Rules.from_config(production, "rules") == Rules.production(), name
+
+    common = dict(split="test", max_trajectories=1, emd_every=0, timing_repeats=0, save_rollouts=False,
+                  render=False)  # fmt: skip
+    raw = evaluate_checkpoints([checkpoints[0]], tiny_dataset, tmp_path / "raw", **common)
+    both = evaluate_checkpoints(
+        [checkpoints[0]], tiny_dataset, tmp_path / "both", rules=Rules.production(), **common
+    )
+    assert raw["rules"] == both["rules"] == Rules.none().to_dict() and "with_rules" not in raw
+    assert both["with_rules"] == Rules.production().to_dict()
+    model_raw, model_both = raw["models"][0], both["models"][0]
+    assert "with_rules" not in model_raw
+    # The primary figure is the same raw rollout whether or not rules were asked for.
+    assert model_both["summary"]["rollout_mse"] == model_raw["summary"]["rollout_mse"]
+    extra = model_both["with_rules"]
+    assert extra["rules"] == Rules.production().to_dict() and len(extra["rows"]) == 1
+    assert extra["rows"][0]["baseline_mse"] == model_raw["rows"][0]["baseline_mse"]  # the baseline: no rules
+    assert np.isfinite(extra["summary"]["rollout_mse"])
+    assert json.loads((tmp_path / "both" / "results.json").read_text())["with_rules"]["free_flight"] is True

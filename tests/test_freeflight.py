@@ -1,6 +1,7 @@
 """Water in free flight falls at g (gnsx/model/freeflight.py): a cluster that touches nothing and moves as one
 body takes the exact free-fall step; one that breaks ranks or comes near a wall or a ramp is the model's."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -114,16 +115,25 @@ def test_the_shipped_models_rollout_of_a_block_in_free_flight_is_exact_until_it_
     steps = 20  # the block's bottom falls from 0.6 to ~0.55: far above the floor's clearance
     g = rule.gravity.float()
     exact = torch.stack([current + k * velocity + k * (k + 1) / 2 * g for k in range(1, steps + 1)])
-    held = rollout(simulator, window_of(current, velocity), types, steps)
-    model = rollout(simulator, window_of(current, velocity), types, steps, rules=Rules(free_flight=False))
+    held = rollout(simulator, window_of(current, velocity), types, steps, rules=Rules.production())
+    without_flight = dataclasses.replace(Rules.production(), free_flight=False)
+    model = rollout(simulator, window_of(current, velocity), types, steps, rules=without_flight)
+    raw = rollout(simulator, window_of(current, velocity), types, steps)  # the default: no rule
     # float32 round-off only (velocities are position differences: ~1e-7 per step, summed over 20 steps)
     assert (held - exact).abs().max() < 2e-5
     assert (model - exact).abs().max() > 1e-4  # the model alone shuffles the block's particles (3.9 mm)
+    assert torch.equal(
+        raw, rollout(simulator, window_of(current, velocity), types, steps, rules=Rules.none())
+    )
+    assert (raw - exact).abs().max() > 1e-4
 
 
 def test_rules_read_from_configs_and_from_older_results():
-    assert Rules() == Rules.from_mapping(None) == Rules.from_mapping({})
-    assert Rules.from_mapping({"free_flight": False}) == Rules(free_flight=False)
+    # Off unless asked: the raw network is the default of every figure (issue: rules are opt-in).
+    assert Rules() == Rules.from_mapping(None) == Rules.from_mapping({}) == Rules.none()
+    assert not Rules().any() and Rules().label() == "raw"
+    assert Rules.production().any() and all(Rules.production().to_dict().values())
+    assert Rules.from_mapping({"free_flight": True}) == Rules(free_flight=True)
     with pytest.raises(ConfigError, match=r"evaluate.rules.free_flght: unknown rule"):
         Rules.from_mapping({"free_flght": True}, "evaluate.rules")
     with pytest.raises(ConfigError, match=r"rules.hold_rest=yes: must be true or false"):
@@ -131,12 +141,12 @@ def test_rules_read_from_configs_and_from_older_results():
     # results.json before the rules block: the two rules of the time at the top level, or nothing at all.
     assert Rules.from_results({}) == Rules.none()
     assert Rules.from_results({"hold_rest": True, "incompressible": True}) == Rules(
-        free_flight=False, level_pool=False
+        hold_rest=True, incompressible=True
     )
-    assert Rules.from_results({"rules": Rules().to_dict()}) == Rules()
+    assert Rules.from_results({"rules": Rules.production().to_dict()}) == Rules.production()
     # A rules block before 2026-12-03 has no level_pool: those rollouts ran without test 4.
-    old = {key: value for key, value in Rules().to_dict().items() if key != "level_pool"}
-    assert Rules.from_results({"rules": old}) == Rules(level_pool=False)
+    old = {key: value for key, value in Rules.production().to_dict().items() if key != "level_pool"}
+    assert Rules.from_results({"rules": old}) == dataclasses.replace(Rules.production(), level_pool=False)
 
 
 def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():

@@ -71,7 +71,8 @@ def test_shipped_weights_keep_a_pool_at_rest_only_with_the_hold():
     that ``gnsx.training.export`` puts a checkpoint through before shipping it, with tests 1-3 alone (test 4 would
     hold this pool for any model)."""
     simulator = load_simulator(SHIPPED)
-    tests_1_to_3 = {held: Rules(hold_rest=held, level_pool=False) for held in (True, False)}
+    production = Rules.production()
+    tests_1_to_3 = {held: replace(production, hold_rest=held, level_pool=False) for held in (True, False)}
     drifts = {held: rest_drift(simulator, rules=rules) for held, rules in tests_1_to_3.items()}
     assert drifts[True] < REST_DRIFT_TARGET_CM
     assert 1.0 < drifts[False] < math.inf  # the hold, not the weights, keeps it: without it the pool sloshes
@@ -174,7 +175,7 @@ def test_shipped_weights_hold_a_deep_pool_only_with_test_4():
     simulator, initial, types = _cpu_case(load_simulator(SHIPPED), "dense_10x")
     speeds = {}
     for level in (True, False):
-        positions = rollout(simulator, initial, types, 20, rules=Rules(level_pool=level))
+        positions = rollout(simulator, initial, types, 20, rules=Rules(hold_rest=True, level_pool=level))
         speeds[level] = float((positions[1:] - positions[:-1]).norm(dim=-1).max()) / 0.0025  # m/s
     assert speeds[True] < 0.15
     assert speeds[False] > 0.5

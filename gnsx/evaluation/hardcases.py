@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import math
 import sys
@@ -192,7 +193,7 @@ def rest_drift(
     scoring well on falling water (README, Decisions: the pretrain's step 10k drifts 4.5 cm);
     ``gnsx.training.export`` checks it before shipping a checkpoint. NaN positions give ``inf``."""
     simulator, initial, types = _cpu_case(simulator, "pool_rest")
-    rules = Rules(level_pool=False) if rules is None else rules
+    rules = dataclasses.replace(Rules.production(), level_pool=False) if rules is None else rules
     positions = rollout(simulator, initial, types, frames, rules=rules).double().numpy()
     if not np.isfinite(positions).all():
         return math.inf
@@ -211,7 +212,17 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
     dt = float(get_preset("small").frame_dt)
     speeds = []
     for held in (True, False):
-        positions = rollout(simulator, initial, types, frames, rules=Rules(hold_rest=held)).double().numpy()
+        positions = (
+            rollout(
+                simulator,
+                initial,
+                types,
+                frames,
+                rules=dataclasses.replace(Rules.production(), hold_rest=held),
+            )
+            .double()
+            .numpy()
+        )
         steps = np.linalg.norm(positions[1:] - positions[:-1], axis=-1)[:, water]
         speeds.append(float(steps.max()) / dt if np.isfinite(steps).all() else math.inf)
     return speeds[0], speeds[1]

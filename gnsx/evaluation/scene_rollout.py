@@ -36,6 +36,7 @@ from gnsx.core.errors import DataError
 from gnsx.data.metadata import Metadata
 from gnsx.evaluation.health import rollout_health, warn_if_unhealthy
 from gnsx.model.rollout import rollout
+from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.generate import check_scene, initial_state
 from gnsx.mpm.presets import Preset
@@ -124,6 +125,7 @@ def rollout_scene(
     ground_truth: bool = False,
     progress: bool = False,
     constrain: bool = True,
+    rules: Rules | None = None,
 ) -> SceneRollout:
     """Roll the model out on a scene for ``num_frames`` frames (inputs included).
 
@@ -137,6 +139,8 @@ def rollout_scene(
         ground_truth: also simulate the scene with the MPM solver and start the model from its first frames.
         constrain: hold the rollout by the scene's walls and ramps (:class:`gnsx.model.boundary.Boundary`);
             ``False``: the raw model.
+        rules: the simulator's rules on the rollout (:class:`gnsx.model.rules.Rules`; None: none, the raw
+            network held by the walls and ramps).
     """
     check_scene(scene, preset)
     num_frames = preset.num_frames if num_frames is None else int(num_frames)
@@ -159,7 +163,11 @@ def rollout_scene(
     window = torch.from_numpy(np.ascontiguousarray(initial)).to(device).transpose(0, 1)  # [N, H+1, 2]
     types = torch.from_numpy(particle_type).to(device)
     steps = num_frames - frames
-    predicted = rollout(simulator, window, types, steps, progress=progress, constrain=constrain).cpu().numpy()
+    predicted = (
+        rollout(simulator, window, types, steps, progress=progress, constrain=constrain, rules=rules)
+        .cpu()
+        .numpy()
+    )
     return SceneRollout(
         predicted=np.concatenate([initial, predicted]).astype(np.float32),
         particle_type=particle_type,
@@ -185,8 +193,10 @@ def simulate_to_folder(
     strip_every: int = 100,
     strip_count: int = 7,
     emd_every: int = 10,
+    rules: Rules | None = None,
 ) -> dict:
-    """:func:`rollout_scene`, then write everything a user looks at into ``out_dir``.
+    """:func:`rollout_scene` (with ``rules``; None: the raw network), then write everything a user looks at
+    into ``out_dir``.
 
     Files: ``scene.yaml`` (the scene as run), ``rollout.npz`` (gnsx rollout file, :mod:`gnsx.data.rollout_io`;
     with the ground truth it holds ``ground_truth`` too), ``rollout.<gif|mp4>`` (the model alone, coloured by
@@ -207,12 +217,16 @@ def simulate_to_folder(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    result = rollout_scene(simulator, scene, preset, num_frames, seed, ground_truth, progress=True)
+    rules = rules or Rules()
+    result = rollout_scene(
+        simulator, scene, preset, num_frames, seed, ground_truth, progress=True, rules=rules
+    )
     num_frames = result.predicted.shape[0]
     metadata = scene_metadata(simulator, preset, num_frames)
     health = rollout_health(result.predicted, result.particle_type, metadata, first_frame=result.input_frames)
     warn_if_unhealthy(health, "the rollout")
-    info = {"model": label, "scene": scene.to_dict(), "seed": seed, "history_source": result.history_source}
+    info = {"model": label, "scene": scene.to_dict(), "seed": seed, "history_source": result.history_source,
+            "rules": rules.to_dict()}  # fmt: skip
     item = Rollout(
         predicted=result.predicted,
         particle_type=result.particle_type,
@@ -242,6 +256,7 @@ def simulate_to_folder(
         "history_source": result.history_source,
         "health": health,
         "blew_up": health["blew_up"],
+        "rules": rules.to_dict(),
     }
     if result.ground_truth is not None:
         both = render_rollouts(panels, result.particle_type, bounds, titles, frame_stride=frame_stride)

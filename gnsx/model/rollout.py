@@ -55,7 +55,7 @@ def rollout(
         rules: with ``constrain``, which of the simulator's rules apply before the boundary, in this order:
             free flight (:class:`FreeFlight`: a free rigid cluster falls at g; the rules after it leave its
             particles alone), the rest hold (:class:`RestHold`), the density limit (:class:`DensityLimit`).
-            ``None``: all of them (:class:`Rules`' defaults).
+            ``None``: none of them (:class:`Rules`' defaults: the raw network held by the walls and ramps).
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.

@@ -108,7 +108,7 @@ def check_train_config(cfg: DictConfig) -> None:
     check_int(_get(cfg, "data.batch_size"), "data.batch_size", minimum=1)
     check_int(_get(cfg, "data.num_workers"), "data.num_workers", minimum=0)
     check_int(_get(cfg, "evaluate.max_trajectories"), "evaluate.max_trajectories", 1, allow_none=True)
-    check_rules(cfg, "evaluate.rules")
+    check_rules(cfg, "rules")
     for key in ("latent_size", "mp_steps", "mlp_hidden_size", "history"):
         check_int(_get(cfg, f"model.{key}"), f"model.{key}", minimum=1)
     check_number(_get(cfg, "model.radius"), "model.radius", positive=True, allow_none=True)
@@ -169,3 +169,4 @@ def check_simulate_config(cfg: DictConfig, input_frames: int | None = None) -> N
     for key in ("render.frame_stride", "render.fps", "render.strip_every", "render.strip_count"):
         check_int(_get(cfg, key), key, minimum=1)
     check_int(_get(cfg, "emd_every"), "emd_every", minimum=0)
+    check_rules(cfg, "rules")

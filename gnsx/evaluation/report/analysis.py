@@ -1,0 +1,209 @@
+"""What a sweep's numbers say: the speed/error Pareto front (:func:`pareto_front`), the best job and whether
+each other job can be told apart from it (:func:`best_job`, :func:`versus_best`), and the model a scene needs,
+the fastest within an error budget (:func:`pick_for_budget`, :func:`budget_lines`).
+
+Each job is compared with the best one (lowest mean rollout MSE): paired over the same test trajectories
+(:func:`gnsx.evaluation.spread.compare`) when both have per-trajectory rows, otherwise by the overlap of mean
+± 2 SE; the table says which (``vs_best_method``).
+
+With ``--budget E`` (``--budget-key``: rollout_mse, onestep_mse or emd): the model a scene needs, the
+fastest successful job whose mean test error is at most E (:func:`pick_for_budget`), its speed ratio to
+every other job and whether its error can be told apart from the best job's (paired over the test
+trajectories with :func:`gnsx.evaluation.spread.compare` when both have per-trajectory rows, else mean ± 2 SE); it
+leads ``report.md`` and is framed in blue in the grid and starred in the scatter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from gnsx.evaluation.report.jobs import Job, _number, speed_source
+from gnsx.evaluation.spread import TIED, compare
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
+    """Indices of the points no other point beats on both coordinates (both minimised), sorted by the first.
+
+    Args:
+        points: ``(cost, error)`` pairs, e.g. (ms/frame, rollout MSE).
+    """
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], math.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def best_job(jobs: Sequence[Job], key: str = "rollout_mse") -> Job | None:
+    """The successful job with the lowest mean test error ``key`` (None when there is none)."""
+    candidates = [j for j in jobs if j.ok and _number(j.spread(key)[0]) is not None]
+    return min(candidates, key=lambda j: j.spread(key)[0]) if candidates else None
+
+
+def versus_best(jobs: Sequence[Job], key: str = "rollout_mse") -> dict[int, tuple[str, str | None]]:
+    """Whether each successful job can be told apart from the best one (:func:`best_job`) on ``key``
+    (default the rollout MSE).
+
+    Returns:
+        ``{id(job): (verdict, method)}``: verdict ``"best"``, ``"worse"``, ``"better"`` (a paired geometric
+        mean can favour another job than the lowest mean), ``"cannot be told apart"`` or ``"unknown"`` (no
+        spread known); method ``"paired"`` (:func:`gnsx.evaluation.spread.compare` over the test trajectories both
+        jobs' rows share, at least 2), ``"2se"`` (the jobs' mean ± 2 SE intervals overlap or not) or None.
+    """
+    best = best_job(jobs, key)
+    out: dict[int, tuple[str, str | None]] = {}
+    if best is None:
+        return out
+    best_mean, best_se = best.spread(key)
+    for job in jobs:
+        if not job.ok or _number(job.spread(key)[0]) is None:
+            continue
+        if job is best:
+            out[id(job)] = ("best", None)
+            continue
+        paired = compare(best.rows, job.rows, key) if best.rows and job.rows else None
+        if paired is not None and paired["trajectories"] >= 2:
+            verdict = {"A better": "worse", "B better": "better"}.get(paired["verdict"], TIED)
+            out[id(job)] = (verdict, "paired")
+            continue
+        mean, se = job.spread(key)
+        if se is None or best_se is None:
+            out[id(job)] = ("unknown", None)
+        elif abs(mean - best_mean) > 2 * (se + best_se):
+            out[id(job)] = ("worse" if mean > best_mean else "better", "2se")
+        else:
+            out[id(job)] = (TIED, "2se")
+    return out
+
+
+# -- the model a scene needs: fastest within an error budget -------------------------------------------------
+#: Test errors a budget can bound (lower is better; data units^2 for the MSEs, data units for EMD).
+BUDGET_KEYS = ("rollout_mse", "onestep_mse", "emd")
+_BUDGET_NAMES = {"rollout_mse": "rollout MSE", "onestep_mse": "one-step MSE", "emd": "EMD"}
+
+
+@dataclass
+class BudgetPick:
+    """What :func:`pick_for_budget` found: the fastest successful job whose mean held-out error ``key`` is at
+    most ``budget``.
+
+    Attributes:
+        pick: that job, or None when no job with a known speed stays within the budget.
+        best: the job with the lowest mean error (:func:`best_job`).
+        versus_best: ``(verdict, method)`` of the pick against the best (:func:`versus_best`): ``"best"``,
+            ``"worse"``, ``"cannot be told apart"``, ... and ``"paired"`` / ``"2se"`` / None.
+        paired: :func:`gnsx.evaluation.spread.compare` of best and pick (``ratio`` = pick's error over the best's) when
+            both have per-trajectory rows, else None.
+        others: per other successful job with a known speed and error: ``(job, speed ratio = its ms/frame over
+            the pick's, its mean error, within the budget)``, fastest first.
+    """
+
+    key: str
+    budget: float
+    source: str
+    pick: Job | None
+    best: Job | None
+    versus_best: tuple[str, str | None] | None = None
+    paired: dict | None = None
+    others: list[tuple[Job, float | None, float, bool]] = field(default_factory=list)
+
+
+def pick_for_budget(jobs: Sequence[Job], budget: float, key: str = "rollout_mse") -> BudgetPick:
+    """The model a scene needs: among the successful jobs with a known speed (:func:`speed_source`), the
+    fastest whose mean test ``key`` is at most ``budget``, with how much faster it is than each other job and
+    whether its error can be told apart from the best job's."""
+    if key not in BUDGET_KEYS:
+        raise ValueError(f"pick_for_budget: key must be one of {BUDGET_KEYS}, got {key!r}")
+    source = speed_source(jobs)
+    timed = [
+        j
+        for j in jobs
+        if j.ok and j.ms_per_frame(source) is not None and _number(j.spread(key)[0]) is not None
+    ]
+    timed.sort(key=lambda j: j.ms_per_frame(source))
+    within = [j for j in timed if j.spread(key)[0] <= budget]
+    pick = within[0] if within else None
+    best = best_job(jobs, key)
+    result = BudgetPick(key=key, budget=float(budget), source=source, pick=pick, best=best)
+    if pick is None:
+        return result
+    result.versus_best = versus_best(jobs, key).get(id(pick))
+    if best is not None and best is not pick and best.rows and pick.rows:
+        result.paired = compare(best.rows, pick.rows, key)
+    ms = pick.ms_per_frame(source)
+    result.others = [
+        (j, j.ms_per_frame(source) / ms if ms > 0 else None, j.spread(key)[0], j.spread(key)[0] <= budget)
+        for j in timed
+        if j is not pick
+    ]
+    return result
+
+
+def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
+    """Markdown lines saying which model the budget picks and by how much it beats the others."""
+    what = _BUDGET_NAMES[result.key]
+    speed = "benchmark at WaterRamps size" if result.source == "bench" else "test rollouts"
+    lines = [f"Budget: test {what} at most {result.budget:.3g} (mean over the test trajectories); speed from"
+             f" the {speed}."]  # fmt: skip
+    pick = result.pick
+    if pick is None:
+        closest = result.best
+        lines.append(
+            "**No model stays within the budget.**"
+            + (
+                f" The lowest {what} is {closest.label(keys)}'s, {_with_se(*closest.spread(result.key))}."
+                if closest
+                else ""
+            )
+        )
+        return lines
+    ms = pick.ms_per_frame(result.source)
+    lines.append(
+        f"**Pick: {pick.label(keys)}**: {ms:.3g} ms/frame, {what} {_with_se(*pick.spread(result.key))}, the"
+        " fastest model within the budget."
+    )
+    verdict, method = result.versus_best or (None, None)
+    best = result.best
+    if verdict == "best":
+        lines.append(f"It is also the most accurate model (lowest mean {what}).")
+    elif best is not None:
+        how = {
+            "paired": "paired over the same test trajectories",
+            "2se": "by the overlap of mean ± 2 SE",
+        }.get(method, "")
+        told = {TIED: "cannot be told apart from", "worse": "is worse than", "better": "is better than"}.get(
+            verdict, "cannot be compared with (no spread recorded)"
+        )
+        line = (
+            f"Its {what} {told} the best model's ({best.label(keys)}, {_with_se(*best.spread(result.key))})"
+        )
+        if result.paired is not None and math.isfinite(result.paired["ratio"]):
+            paired = result.paired
+            interval = f" [{paired['lo']:.2f}, {paired['hi']:.2f}]" if math.isfinite(paired["lo"]) else ""
+            line += (f": pick / best {paired['ratio']:.2f}x{interval}, geometric mean over"
+                     f" {paired['trajectories']} trajectories")  # fmt: skip
+        lines.append(line + (f", {how}." if how else "."))
+    faster = [f"{ratio:.2f}x faster than {job.label(keys)}" + ("" if within else " (over budget)")
+              for job, ratio, _, within in result.others if ratio is not None and ratio >= 1]  # fmt: skip
+    if faster:
+        lines.append("Speed: " + "; ".join(faster) + ".")
+    over = [job.label(keys) for job, ratio, _, within in result.others if ratio is not None and ratio < 1]
+    if over:
+        lines.append(f"Faster but over the budget: {', '.join(over)}.")
+    return lines
+
+
+def _with_se(mean: float | None, se: float | None, fmt: str = ".2e") -> str:
+    if mean is None:
+        return "n/a"
+    return f"{mean:{fmt}} ± {se:.1e}" if se is not None else f"{mean:{fmt}}"
+
+
+def _ratio_text(ratio: float | None, lo: float | None, hi: float | None) -> str:
+    if ratio is None:
+        return "n/a"
+    return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else f"{ratio:.2f}x"

@@ -1,0 +1,264 @@
+"""The sweep's pictures (matplotlib): the paper's figure 9 grid (:func:`plot_grid`), speed against error with
+the Pareto front (:func:`plot_speed_error`) and error and speed against the radius (:func:`plot_radius`).
+
+* ``grid.png``: one frame of each job's first test rollout, rows the embedding size and columns the
+  message-passing count (figure 9: capacity falls from top left to bottom right), each cell annotated with
+  ms/frame, MB, rollout MSE ± its standard error, the baseline ratio with its interval and whether it can be
+  told apart from the best cell (text in red when it does not beat the physics-free baseline), the paper's
+  64/5 cell framed in green, failed jobs with their reason, and the ground truth's frame for reference. A
+  sweep of one parameter (e.g. the radius) gives one row.
+* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log) with ±1 SE error bars, the Pareto front
+  marked (no other job is both faster and more accurate), models that do not beat the baseline in red.
+* ``radius.png`` (when the radius varies): rollout and one-step error, and ms/frame, against the radius.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gnsx.evaluation.report.analysis import BudgetPick, _ratio_text, _with_se, pareto_front, versus_best
+from gnsx.evaluation.report.jobs import Job, _number, speed_source, swept_axes
+from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
+
+#: The paper's model (figure 9's green cell): (latent size, message-passing steps).
+PAPER_CELL = (64, 5)
+#: Colour of the budget's pick in the pictures (the paper's cell is limegreen, losers red).
+PICK_COLOUR = "dodgerblue"
+
+# -- pictures ------------------------------------------------------------------------------------------------
+_VERSUS_BEST_TAGS = {"best": "best", TIED: "≈ best", "better": "better than best (paired)"}
+
+
+def _cell_text(job: Job, source: str, versus: tuple[str, str | None] | None = None) -> str:
+    ms, mb = job.ms_per_frame(source), job.memory_mb(source)
+    first = f"{ms:.1f} ms/frame" if ms is not None else "? ms/frame"
+    first += f", {mb:.0f} MB" if mb is not None else ""
+    if job.rollout_mse is None:
+        return first
+    lines = [first, "MSE " + _with_se(*job.spread("rollout_mse"))]
+    ratio = job.baseline_ratio()
+    if ratio[0] is not None:
+        lines.append("base/model " + _ratio_text(*ratio))
+    tag = _VERSUS_BEST_TAGS.get(versus[0]) if versus else None
+    if job.versus_baseline() == DOES_NOT_BEAT:
+        lines.append("does not beat baseline" + (f"; {tag}" if tag else ""))
+    elif tag:
+        lines.append(tag)
+    return "\n".join(lines)
+
+
+def _cell_colour(job: Job) -> str:
+    return "red" if job.versus_baseline() == DOES_NOT_BEAT else "black"
+
+
+def grid_layout(jobs: Sequence[Job]) -> tuple[str | None, list, str, list]:
+    """``(row_key, row_values, col_key, col_values)`` of the grid picture: the first two swept axes of
+    :data:`AXES` (one row when only one varies). Latent sizes and MP counts run from large to small (capacity
+    falls from top left to bottom right, as in figure 9), radii from small to large."""
+    axes_keys = swept_axes(jobs)[:2] or ["mp_steps"]
+    row_key = axes_keys[0] if len(axes_keys) == 2 else None
+    col_key = axes_keys[-1]
+    row_values = sorted({getattr(j, row_key) for j in jobs}, key=_desc) if row_key else [None]
+    col_values = sorted({getattr(j, col_key) for j in jobs}, key=_desc if col_key != "radius" else _asc)
+    return row_key, row_values, col_key, col_values
+
+
+def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL,
+              pick: Job | None = None) -> Path:  # fmt: skip
+    """Figure 9: one rendered test frame per job on a grid of the swept axes (first two of :data:`AXES`);
+    ``pick`` (:func:`pick_for_budget`) framed in blue and tagged "budget pick"."""
+    import imageio.v3 as iio
+    import matplotlib.pyplot as plt
+
+    row_key, row_values, col_key, col_values = grid_layout(jobs)
+    cells: dict[tuple, Job] = {}
+    for job in jobs:
+        cells.setdefault((getattr(job, row_key) if row_key else None, getattr(job, col_key)), job)
+    source = speed_source(jobs)
+    versus = versus_best(jobs)
+    truth = next(
+        (j.frame_truth_png for j in jobs if j.frame_truth_png and Path(j.frame_truth_png).is_file()), None
+    )
+    ncols = len(col_values) + (1 if truth else 0)
+    fig, grid = plt.subplots(
+        len(row_values), ncols, figsize=(2.6 * ncols, 3.4 * len(row_values) + 0.3), squeeze=False
+    )
+    for r, row_value in enumerate(row_values):
+        for c, col_value in enumerate(col_values):
+            ax = grid[r, c]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            job = cells.get((row_value, col_value))
+            if job is None:
+                ax.set_facecolor("0.92")
+                ax.text(0.5, 0.5, "not run", ha="center", va="center", transform=ax.transAxes)
+            elif job.ok and job.frame_png and Path(job.frame_png).is_file():
+                ax.imshow(iio.imread(job.frame_png))
+                ax.set_xlabel(
+                    _cell_text(job, source, versus.get(id(job))), fontsize=8, color=_cell_colour(job)
+                )
+            else:
+                ax.set_facecolor("0.85")
+                reason = "failed: " + (job.error or "unknown") if not job.ok else "no frame rendered"
+                ax.text(0.5, 0.5, "\n".join(textwrap.wrap(reason, 26)[:6]), ha="center", va="center",
+                        fontsize=7, color="darkred", transform=ax.transAxes)  # fmt: skip
+                if job.ok:
+                    ax.set_xlabel(_cell_text(job, source, versus.get(id(job))), fontsize=8,
+                                  color=_cell_colour(job))  # fmt: skip
+            if r == 0:
+                ax.set_title(_axis_value(col_key, col_value), fontsize=10)
+            if c == 0 and row_key:
+                ax.set_ylabel(_axis_value(row_key, row_value), fontsize=10)
+            is_paper = (
+                highlight is not None
+                and job is not None
+                and (job.latent_size, job.mp_steps) == tuple(highlight)
+                and {row_key, col_key} <= {"latent_size", "mp_steps", None}
+            )
+            picked = pick is not None and job is pick
+            for spine in ax.spines.values():
+                # The paper's cell keeps its green frame when it is also the pick; the tag says so.
+                spine.set_edgecolor("limegreen" if is_paper else PICK_COLOUR if picked else "0.6")
+                spine.set_linewidth(4 if is_paper or picked else 0.8)
+            if picked:
+                ax.text(0.5, 0.98, "budget pick", ha="center", va="top", fontsize=9, fontweight="bold",
+                        color=PICK_COLOUR, transform=ax.transAxes,
+                        bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8})  # fmt: skip
+        if truth:
+            ax = grid[r, -1]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.imshow(iio.imread(truth))
+                ax.set_title("ground truth", fontsize=10)
+            else:
+                ax.axis("off")
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollouts"
+    sweep = next((j.sweep for j in jobs if j.sweep), "sweep")
+    title = f"{sweep}: one test frame per model; ms/frame and peak MB from the {what}"
+    fig.suptitle(title + "\ntest MSE ± SE over trajectories; red: does not beat the physics-free baseline",
+                 fontsize=10)  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _desc(value):
+    return -value if value is not None else math.inf
+
+
+def _asc(value):
+    return value if value is not None else math.inf
+
+
+def _axis_value(key: str, value) -> str:
+    if key == "radius":
+        return f"radius {value:g}" if value is not None else "radius ?"
+    return f"{'MP' if key == 'mp_steps' else 'latent'} {value}"
+
+
+def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL,
+                     budget: BudgetPick | None = None) -> Path:  # fmt: skip
+    """ms/frame against test rollout MSE (±1 SE error bars), log-log, every successful job labelled, the
+    Pareto front joined, jobs that do not beat the physics-free baseline in red; with a ``budget``, its pick
+    starred in blue (and the budget drawn when it bounds the rollout MSE)."""
+    import matplotlib.pyplot as plt
+
+    source = speed_source(jobs)
+    keys = swept_axes(jobs)
+    points, shown = [], []
+    for job in jobs:
+        ms, mse = job.ms_per_frame(source), job.rollout_mse
+        if job.ok and ms is not None and mse is not None and ms > 0 and mse > 0:
+            points.append((ms, mse))
+            shown.append(job)
+    fig, ax = plt.subplots(figsize=(7, 5))
+    if points:
+        xs, ys = np.array(points).T
+        se = np.array([job.spread("rollout_mse")[1] or 0.0 for job in shown])
+        # On a log axis the lower bar cannot reach zero: clip it just above.
+        ax.errorbar(xs, ys, yerr=[np.minimum(se, 0.99 * ys), se], fmt="none", ecolor="0.4", elinewidth=1,
+                    capsize=3, zorder=2.5)  # fmt: skip
+        losing = np.array([job.versus_baseline() == DOES_NOT_BEAT for job in shown])
+        ax.scatter(xs[~losing], ys[~losing], color="tab:blue", zorder=3, label="model (±1 SE)")
+        if losing.any():
+            ax.scatter(xs[losing], ys[losing], color="red", marker="X", s=70, zorder=3,
+                       label="does not beat the baseline")  # fmt: skip
+        for job, (x, y) in zip(shown, points):
+            ax.annotate(job.label(keys), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+            if highlight is not None and (job.latent_size, job.mp_steps) == tuple(highlight):
+                ax.scatter([x], [y], s=220, facecolors="none", edgecolors="limegreen", linewidths=2, zorder=4,
+                           label=f"paper's {highlight[0]}/{highlight[1]}")  # fmt: skip
+        if budget is not None and budget.pick in shown:
+            x, y = points[shown.index(budget.pick)]
+            ax.scatter([x], [y], marker="*", s=320, color=PICK_COLOUR, zorder=5, label="budget pick")
+        if budget is not None and budget.key == "rollout_mse":
+            ax.axhline(budget.budget, ls="--", lw=1, color=PICK_COLOUR, label=f"budget {budget.budget:.3g}")
+        front = pareto_front(points)
+        # A staircase: between two front points, the best error reachable at that speed is the slower one's.
+        ax.plot(xs[front], ys[front], "-o", drawstyle="steps-post", color="tab:red", mfc="none", ms=11,
+                zorder=2, label="Pareto front")  # fmt: skip
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no successful job", ha="center", va="center", transform=ax.transAxes)
+    failed = [j for j in jobs if not j.ok]
+    if failed:
+        names = ", ".join(j.label(keys) for j in failed)
+        ax.text(0.01, 0.01, f"{len(failed)} failed job(s) not shown: {names}", transform=ax.transAxes,
+                fontsize=7, color="darkred")  # fmt: skip
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
+    ax.set_xlabel(f"inference ms/frame ({what}, graph build included)")
+    ax.set_ylabel("test rollout MSE (data units$^2$)")
+    ax.set_title(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: speed vs error", fontsize=11)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
+    """Rollout (and one-step) MSE, and ms/frame, against the connection radius; failed radii marked."""
+    import matplotlib.pyplot as plt
+
+    source = speed_source(jobs)
+    ok = sorted((j for j in jobs if j.ok and j.radius is not None), key=lambda j: j.radius)
+    fig, (err_ax, ms_ax) = plt.subplots(1, 2, figsize=(10, 4))
+    radius = [j.radius for j in ok]
+    for key, style in (("rollout_mse", "-o"), ("onestep_mse", "--s")):
+        values = [_number(j.test.get(key)) for j in ok]
+        if any(v is not None for v in values):
+            err_ax.plot(
+                radius, [np.nan if v is None else v for v in values], style, label=key.replace("_", " ")
+            )
+    ms = [j.ms_per_frame(source) for j in ok]
+    ms_ax.plot(radius, [np.nan if v is None else v for v in ms], "-o", color="tab:orange")
+    for job in jobs:
+        if not job.ok and job.radius is not None:
+            for ax in (err_ax, ms_ax):
+                ax.axvline(job.radius, color="darkred", ls=":", lw=1)
+                ax.text(job.radius, 0.98, " failed", color="darkred", fontsize=7, va="top",
+                        transform=ax.get_xaxis_transform())  # fmt: skip
+    err_ax.set_yscale("log")
+    err_ax.set_xlabel("connection radius (data units)")
+    err_ax.set_ylabel("test MSE (data units$^2$)")
+    if err_ax.get_legend_handles_labels()[0]:
+        err_ax.legend(fontsize=8)
+    ms_ax.set_xlabel("connection radius (data units)")
+    what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
+    ms_ax.set_ylabel(f"inference ms/frame ({what})")
+    for ax in (err_ax, ms_ax):
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: error and speed against radius")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
