@@ -28,7 +28,7 @@ install: $(VENV)/.installed ## Create .venv and install gnsx with its dependenci
 demo: install ## Main job: generate the small preset, train the simplified GNS, evaluate, render (<= 15 min on CPU)
 	$(PY) train.py
 
-train: install ## Train with Hydra overrides, e.g. make train ARGS='model=original trainer.max_steps=2000'
+train: install ## Train with Hydra overrides, e.g. make train ARGS='model=original train.max_steps=2000'
 	$(PY) train.py $(ARGS)
 
 test: install ## Fast test suite (CPU, a few minutes)
@@ -68,7 +68,7 @@ pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e
 	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small --select-best-val
 
 PRETRAIN_DAM_DIR ?= outputs/pretrain/small_dam
-pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on pools and dam breaks; ~25 min): exported to outputs/pretrain/small_dam/export, not shipped (README, Decisions)
+pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on pools and dam breaks; ~25 min): exported to outputs/pretrain/small_dam/export, not shipped (docs/decisions)
 	$(PY) train.py data=small_400 train=pretrain train.max_steps=15000 train.val_every_n_steps=5000 \
 		train.permanent_every_n_steps=1000 evaluate.enabled=false evaluate.render=false \
 		hydra.run.dir=$(PRETRAIN_DAM_DIR)/base $(ARGS) \
@@ -115,7 +115,7 @@ report: install ## Report of a sweep: make report SWEEP=multirun/<sweep>/<date_t
 	@[ -n "$(SWEEP)" ] || { echo "no multirun directory: make report SWEEP=multirun/<sweep>/<date_time>"; exit 1; }
 	$(PY) -m gnsx.evaluation.report $(SWEEP)
 
-clean: ## Remove generated data and run outputs (keeps .venv)
+clean: ## Remove run outputs (outputs/, multirun/, wandb/); keeps data/ and .venv
 	rm -rf outputs multirun wandb .pytest_cache
 
 CKPT ?=

@@ -151,7 +151,7 @@ def test_rules_read_from_configs_and_from_older_results():
 
 def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():
     """A model whose graph reaches 0.05 on data of radius 0.035 keeps the MPM's reach (2 x 0.035): with the
-    model's radius free flight reached 0.1 and missed most fresh blocks (README, Decisions)."""
+    model's radius free flight reached 0.1 and missed most fresh blocks (docs/decisions)."""
     from gnsx.model.rest import RestHold
     from gnsx.model.simulator import LearnedSimulator
 

@@ -201,7 +201,7 @@ def test_export_reuses_a_test_evaluation_of_the_same_checkpoint_only(tmp_path):
 
 def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     """The shipping rule: the lowest validation error among checkpoints that keep a pool at rest (the
-    pretrain's step 10k scored best and drifted 4.5 cm per 100 frames; README, Decisions)."""
+    pretrain's step 10k scored best and drifted 4.5 cm per 100 frames; docs/decisions)."""
     from gnsx.training.export import export, first_at_rest
 
     drifts = {"a.ckpt": 4.5, "b.ckpt": 0.06, "c.ckpt": 0.1}

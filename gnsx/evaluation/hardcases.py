@@ -190,7 +190,7 @@ def rest_drift(
     ``rules`` (default: all but ``level_pool``, which holds this pool whatever the model predicts, so the
     gate would no longer see the model's own water at rest: in a corner or on a ramp, where test 4 does not
     apply, that is all the rest hold has). The quick part of the hard cases that a checkpoint can fail while
-    scoring well on falling water (README, Decisions: the pretrain's step 10k drifts 4.5 cm);
+    scoring well on falling water (docs/decisions: the pretrain's step 10k drifts 4.5 cm);
     ``gnsx.training.export`` checks it before shipping a checkpoint. NaN positions give ``inf``."""
     simulator, initial, types = _cpu_case(simulator, "pool_rest")
     rules = dataclasses.replace(Rules.production(), level_pool=False) if rules is None else rules

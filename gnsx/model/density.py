@@ -19,7 +19,7 @@ the area metric and the renderer use; scenes start as jittered blocks on a latti
 Before 2026-12-02 the spacing was the median nearest-neighbour distance, which reads ~0.73 of the lattice
 spacing on the MPM's jittered blocks, so ``rho_0`` was ~1.6x the water's real rest density and the limit
 held only water compressed far beyond anything in the truth. With the real rest density the tolerance was
-chosen on 32 fresh trajectories (README, Decisions): the ground truth's own water lies above ``1 +
+chosen on 32 fresh trajectories (docs/decisions): the ground truth's own water lies above ``1 +
 TOLERANCE`` at 17% of its particle-frames (MPM particles pair up and compress on impact), so this is a rule
 tuned for what it measures, a little stiffer than the MPM's water, not a property of it.
 
@@ -40,7 +40,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.neighbors import particle_spacing, radius_graph
 
 #: Relative density above the rest density that counts as compressed. Chosen on 32 fresh trajectories
-#: (``data/tune32``, seed 11; README Decisions): from 0.1 to 0.45 a tighter limit gave a lower whole-rollout
+#: (``data/tune32``, seed 11; docs/decisions): from 0.1 to 0.45 a tighter limit gave a lower whole-rollout
 #: MSE and EMD but higher MSE over the first 10 and 50 frames (impacts compress the MPM's water for a few
 #: frames); 0.2 is the tightest whose mean MSE@10 and @50 stay clearly below the baseline's.
 TOLERANCE = 0.2
@@ -130,7 +130,7 @@ class DensityLimit:
 
         The limit thus acts on compression the rollout adds, never on the density a scene starts with: the
         MPM's blocks start jittered, up to ~1.45x their lattice's density at a particle, and a limit pushing
-        those apart moved water that the truth has falling freely or resting (measured: README, Decisions).
+        those apart moved water that the truth has falling freely or resting (measured: docs/decisions).
         """
         limit = (1.0 + self.tolerance) * self.rest_density
         allowed = torch.full((previous.shape[0],), limit, dtype=torch.float64, device=previous.device)

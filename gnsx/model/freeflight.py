@@ -27,7 +27,7 @@ model itself sees only one radius). The clearance to walls and ramps is its own 
 frame of approach looked ahead. Over 150 training trajectories (``scripts/free_flight_contact.py``) the
 truth's isolated rigid clusters heading for a ramp still fell at g with a clearance (so measured) of 1.28
 radii or more, while the ones pushed in the next step came as close as 0.68 (5th percentile 0.75); walls push
-only at contact (clearance 0). On the 32 tuning trajectories (README, Decisions) clearances of 1-1.5 radii
+only at contact (clearance 0). On the 32 tuning trajectories (docs/decisions) clearances of 1-1.5 radii
 gave MSE over the first 10 and 50 frames within each other's standard errors; 0.5 radii for walls gave the
 highest mean over 50 frames of those tried (1.45e-4 against 1.32-1.37e-4), as if the model predicts an impact
 better once it has seen the wall coming; 1.3 was kept for both. Until 2026-12-02 the clearance was the
@@ -38,7 +38,7 @@ frames to 0.13x and over 50 to 0.47x on the 32 tuning trajectories, and left the
 cluster of its own and falls at g, as the pairwise decoder already makes it. The radii are the data's
 (:attr:`LearnedSimulator.rules_radius`), not the model's: the MPM's reach does not grow with the model's
 graph. (When it did, a model with radius 0.05 instead of 0.035 had a reach of 0.1, fewer fresh blocks counted
-as free, and its MSE over the first 10 frames was ~250x worse; README, Decisions.)
+as free, and its MSE over the first 10 frames was ~250x worse; docs/decisions.)
 
 Cost: scipy's pairs within ``reach`` and their connected components, on the CPU, every step
 (``scripts/free_flight_cost.py``: median frames 1-18% slower at 400-2,300 particles, within the spread in two

@@ -7,7 +7,7 @@ ramp agree with their reflection to float32 round-off). A graph network's edge f
 displacements) and wall distances are not reflection invariant by construction, so it has to learn the
 symmetry from data. Training on each sample or its reflection, with probability 1/2 per graph, doubles the
 scenes the model sees at no cost per step: against the same 15k-step pretrain without it, 0.89-0.93x the
-rollout MSE on the 40 selection trajectories, one seed per arm (README, Decisions).
+rollout MSE on the 40 selection trajectories, one seed per arm (docs/decisions).
 
 Only the first (horizontal) axis is reflected: gravity points along the second, as in DeepMind's 2D sets.
 """

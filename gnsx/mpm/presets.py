@@ -56,7 +56,7 @@ class Preset:
             instead of a falling block; drawn from the same stream as ``rest_fraction`` (a pool below
             ``rest_fraction``, a dam in the next ``dam_fraction``),
             so adding dams keeps every pool and changes only the scenes it turns into dams. Why: pools alone
-            teach that water at rest stays at rest, and slow a dam that should break (README, Decisions).
+            teach that water at rest stays at rest, and slow a dam that should break (docs/decisions).
         pool_depth_range: ``(min, max)`` depth of those pools.
         rest_block_probability: chance that such a pool also gets a block falling into it.
         default_connectivity_radius: the neighbour radius written to the metadata.

@@ -73,8 +73,19 @@ def check_train_config(cfg: DictConfig) -> None:
     check_int(_get(cfg, "train.pushforward_steps", 0), "train.pushforward_steps", minimum=0)
     check_int(_get(cfg, "train.lr_warmup_steps", 0), "train.lr_warmup_steps", minimum=0)
     check_int(_get(cfg, "train.val_max_trajectories"), "train.val_max_trajectories", 1, allow_none=True)
-    for key in ("lr_init", "lr_final", "noise_decay", "huber_delta"):
+    for key in ("lr_init", "lr_final", "huber_delta"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True)
+    check_number(_get(cfg, "train.noise_decay"), "train.noise_decay", positive=True, allow_none=True)
+    if _get(cfg, "train.noise_decay") is None and _get(cfg, "model.noise_decay") is None:
+        raise ConfigError("train.noise_decay=null", "and the model config sets no noise_decay: set one")
+    schedule = _get(cfg, "train.lr_schedule", "exponential")
+    from gnsx.training.schedule import LR_SCHEDULES
+
+    if schedule not in LR_SCHEDULES:
+        raise ConfigError(f"train.lr_schedule={schedule}", f"expected one of {', '.join(LR_SCHEDULES)}")
+    matmul = _get(cfg, "trainer.float32_matmul_precision", "highest")
+    if matmul not in ("highest", "high", "medium"):
+        raise ConfigError(f"trainer.float32_matmul_precision={matmul}", "expected highest, high or medium")
     noise = check_number(_get(cfg, "train.noise_std"), "train.noise_std", allow_none=True)
     if noise is not None and noise < 0:
         raise ConfigError(f"train.noise_std={noise}", "must be >= 0 (or null: the model's)")
@@ -125,7 +136,9 @@ def check_model_config(cfg: DictConfig) -> None:
     from gnsx.model.simulator import LearnedSimulator
 
     arch = OmegaConf.to_container(cfg.model, resolve=True)
-    for key in ("name", "noise_std", "radius"):  # config keys that are not model arguments
+    from gnsx.model.registry import MODEL_CONFIG_EXTRAS
+
+    for key in MODEL_CONFIG_EXTRAS:  # config keys that are not model arguments
         arch.pop(key, None)
     facts = {"dim": 2, "bounds": [[0.0, 1.0], [0.0, 1.0]], "radius": 0.1, "vel_mean": [0.0, 0.0],
              "vel_std": [1.0, 1.0], "acc_mean": [0.0, 0.0], "acc_std": [1.0, 1.0]}  # fmt: skip

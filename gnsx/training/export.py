@@ -156,7 +156,7 @@ def first_at_rest(
     2026-12-04, when a fine-tune that passed the rest gate missed g by 5.4% and failed the shipped weights'
     test after export).
 
-    The rule for shipping (README, Decisions): the lowest validation error among the checkpoints that pass
+    The rule for shipping (docs/decisions): the lowest validation error among the checkpoints that pass
     the hard cases a checkpoint can fail while scoring well on falling water. When none passes, the first of
     ``ranked`` (the caller warns)."""
     from gnsx.evaluation.hardcases import FREE_FALL_TOLERANCE, dam_breaks

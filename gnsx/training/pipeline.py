@@ -44,6 +44,7 @@ from gnsx.data.metadata import Metadata
 from gnsx.evaluation.evaluate import evaluate_run
 from gnsx.evaluation.scoring import gravity_per_frame
 from gnsx.model.checkpoint import check_resume, checkpoint_path, read_checkpoint
+from gnsx.model.registry import MODEL_CONFIG_EXTRAS
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.training.config_checks import check_train_config
 from gnsx.training.numerics import Diverged
@@ -60,7 +61,7 @@ from gnsx.training.time_budget import TimeBudget, TrainingClock, parse_duration
 log = logging.getLogger("gnsx")
 
 #: Config keys of ``model/*.yaml`` that are not LearnedSimulator architecture arguments.
-_NON_ARCH_KEYS = ("name", "noise_std", "radius")
+_NON_ARCH_KEYS = MODEL_CONFIG_EXTRAS
 #: The test metrics every results.json carries (None when the evaluation did not produce one).
 TEST_KEYS = ("rollout_mse", "onestep_mse", "emd", "baseline_mse", "ms_per_frame", "peak_memory_mb")
 
@@ -130,17 +131,27 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         "bounds": [list(map(float, b)) for b in meta.bounds],
         **{key: list(getattr(meta, key)) for key in ("vel_mean", "vel_std", "acc_mean", "acc_std")},
     }
+    noise = training_noise(cfg)
+    radius, radius_source = connectivity_radius(cfg, meta)
     init = resolve_checkpoint(OmegaConf.select(train, "init_weights", default=None), "train.init_weights")
     state = read_checkpoint(init) if init is not None else None
     if state is not None:
-        facts = {key: state["hyper_parameters"][key] for key in facts}
+        facts = {key: state["hyper_parameters"][key] for key in facts}  # already widened if they were
+    elif OmegaConf.select(cfg.model, "widen_stats_by_noise", default=False):
+        for key in ("vel_std", "acc_std"):
+            facts[key] = combine_std(facts[key], noise["noise_std"])
+        log.info("Normalisation stds widened by the noise %.3g (model.widen_stats_by_noise): vel_std %s, "
+                 "acc_std %s", noise["noise_std"], _short(facts["vel_std"]), _short(facts["acc_std"]))  # fmt: skip
+    log.info("Model %s: connection radius %g (%s); noise %.3g from %s, decay x%g from %s", cfg.model.name,
+             radius, radius_source, noise["noise_std"], noise["noise_std_source"], noise["noise_decay"],
+             noise["noise_decay_source"])  # fmt: skip
     system = GNSSystem(
         model=model_arguments(cfg.model, meta),
         dim=meta.dim,
-        radius=float(cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius),
+        radius=radius,
         **facts,
-        noise_std=float(train.noise_std if train.noise_std is not None else cfg.model.noise_std),
-        noise_decay=float(train.noise_decay),
+        noise_std=noise["noise_std"],
+        noise_decay=noise["noise_decay"],
         noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
         pushforward_steps=int(OmegaConf.select(train, "pushforward_steps", default=0)),
         mirror=bool(OmegaConf.select(train, "mirror", default=False)),
@@ -149,6 +160,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         lr_decay_start=int(train.lr_decay_start),
         lr_decay_end=int(train.lr_decay_end),
         lr_warmup_steps=int(OmegaConf.select(train, "lr_warmup_steps", default=0)),
+        lr_schedule=str(OmegaConf.select(train, "lr_schedule", default="exponential")),
         loss=str(train.loss),
         huber_delta=float(train.huber_delta),
         max_skipped_steps=int(OmegaConf.select(train, "max_skipped_steps", default=20)),
@@ -160,6 +172,54 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         log.info("Weights from %s (train.init_weights, %s training samples, %s); a fresh schedule and "
                  "optimizer", init, f"{before:,}", how)  # fmt: skip
     return system
+
+
+def apply_matmul_precision(cfg: DictConfig) -> str:
+    """``torch.set_float32_matmul_precision`` from ``trainer.float32_matmul_precision`` (default
+    ``"highest"``: true fp32 products; ``"high"`` would let CUDA use TF32). Returns the setting."""
+    precision = str(OmegaConf.select(cfg, "trainer.float32_matmul_precision", default="highest"))
+    if precision not in ("highest", "high", "medium"):
+        raise ConfigError(f"trainer.float32_matmul_precision={precision}", "must be highest, high or medium")
+    torch.set_float32_matmul_precision(precision)
+    return precision
+
+
+def combine_std(std: list[float], noise_std: float) -> list[float]:
+    """DeepMind's ``_combine_std``: ``sqrt(std^2 + noise_std^2)`` per dimension (data units)."""
+    return [math.sqrt(float(s) ** 2 + float(noise_std) ** 2) for s in std]
+
+
+def training_noise(cfg: DictConfig) -> dict[str, Any]:
+    """The training noise's std and decay and where each comes from: the model config (``model.noise_std``,
+    ``model.noise_decay``: the paper's recipe for the simplified model, DeepMind's for the original) unless the
+    train config sets one explicitly (``train.noise_std``/``train.noise_decay`` not null), which is then an
+    override, logged and recorded in results.json (``model_config.noise_std_source``)."""
+    out: dict[str, Any] = {}
+    for key, default in (("noise_std", None), ("noise_decay", 1.0)):
+        override = OmegaConf.select(cfg.train, key, default=None)
+        model_value = OmegaConf.select(cfg.model, key, default=default)
+        if override is not None:
+            out[key], out[f"{key}_source"] = (
+                float(override),
+                f"train.{key} (overrides model.{key}={model_value})",
+            )
+        elif model_value is not None:
+            out[key], out[f"{key}_source"] = float(model_value), f"model.{key}"
+        else:
+            raise ConfigError(f"model.{key}", f"not set, and train.{key} is null: set one of them")
+    return out
+
+
+def connectivity_radius(cfg: DictConfig, meta: Metadata) -> tuple[float, str]:
+    """The connection radius the model's graph uses and where it comes from (``model.radius``, or the
+    dataset's ``default_connectivity_radius`` when that is null)."""
+    if cfg.model.radius is not None:
+        return float(cfg.model.radius), "model.radius"
+    return float(meta.default_connectivity_radius), "the dataset's default_connectivity_radius"
+
+
+def _short(values: list[float]) -> str:
+    return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
 
 
 def samples_before(path: Path, state: dict) -> tuple[int, str]:
@@ -260,6 +320,9 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
         checkpoints.append(wall_clock_checkpoint(ckpt_dir, float(minutes)))
     remove_stale_temporaries(ckpt_dir)
     trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
+    trainer_args.pop(
+        "float32_matmul_precision", None
+    )  # gnsx's, not a Trainer argument (apply_matmul_precision)
     requested = trainer_args.get("precision", "32-true")
     trainer_args["precision"] = resolve_precision(requested, trainer_args.get("accelerator", "auto"))
     if str(requested) == "auto":
@@ -331,8 +394,14 @@ def model_summary(cfg: DictConfig, system: GNSSystem) -> dict[str, Any]:
     """The model's name, architecture and effective radius (the dataset's when ``model.radius`` is null)."""
     arch = architecture(cfg.model)
     arch["wall_clip"] = list(arch["wall_clip"])
+    noise = training_noise(cfg)
     return {"name": str(cfg.model.name), **arch, "radius": float(system.hparams.radius),
-            "noise_std": float(system.hparams.noise_std)}  # fmt: skip
+            "radius_source": "model.radius" if cfg.model.radius is not None
+            else "the dataset's default_connectivity_radius", "noise_std": float(system.hparams.noise_std),
+            "noise_std_source": noise["noise_std_source"], "noise_decay": float(system.hparams.noise_decay),
+            "noise_decay_source": noise["noise_decay_source"],
+            "widen_stats_by_noise": bool(OmegaConf.select(cfg.model, "widen_stats_by_noise", default=False)),
+            "acc_std": list(system.hparams.acc_std), "vel_std": list(system.hparams.vel_std)}  # fmt: skip
 
 
 def as_divergence(error: Exception) -> Exception:
@@ -549,7 +618,7 @@ def _train_and_evaluate(
     threads = OmegaConf.select(cfg, "sweep.torch_threads", default=None) or cfg.get("threads")
     record["threads"] = apply_threads(threads, processes=local_processes(cfg))
     L.seed_everything(int(cfg.seed), workers=True)
-    torch.set_float32_matmul_precision("high")
+    record["float32_matmul_precision"] = apply_matmul_precision(cfg)
     loggers.extend(
         build_loggers(cfg, run_dir, name=record["name"], group=cfg.logger.group or record["sweep"])
     )

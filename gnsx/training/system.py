@@ -17,7 +17,7 @@ from gnsx.evaluation.scoring import evaluate_trajectory
 from gnsx.model.checkpoint import simulator_from_hparams
 from gnsx.model.mirror import random_mirror
 from gnsx.training.numerics import SkippedSteps, drop_gradients, finite_gradients
-from gnsx.training.schedule import learning_rate, noise_std, warmup_factor
+from gnsx.training.schedule import LR_SCHEDULES, learning_rate, noise_std, warmup_factor
 
 #: Training losses on the normalised acceleration (``train.loss``).
 LOSSES = ("mse", "huber")
@@ -74,6 +74,8 @@ class GNSSystem(L.LightningModule):
         mirror: train on each sample or its left-right reflection, with probability 1/2
             (:mod:`gnsx.model.mirror`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
+        lr_schedule: ``"exponential"`` (the paper's) or ``"deepmind"`` (DeepMind's; see
+            :func:`gnsx.training.schedule.learning_rate`).
         lr_warmup_steps: linear LR ramp over the first steps (:func:`gnsx.training.schedule.warmup_factor`; 0: none).
         onestep_stride: validation one-step MSE uses every ``onestep_stride``-th frame of each trajectory.
         loss: ``"mse"`` (the paper's and DeepMind's: squared error of the normalised acceleration) or
@@ -106,12 +108,15 @@ class GNSSystem(L.LightningModule):
         lr_decay_start: int = 1_000_000,
         lr_decay_end: int = 1_500_000,
         lr_warmup_steps: int = 0,
+        lr_schedule: str = "exponential",
         onestep_stride: int = 10,
         loss: str = "mse",
         huber_delta: float = 1.0,
         max_skipped_steps: int = 20,
     ):
         super().__init__()
+        if lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"GNSSystem: lr_schedule must be one of {LR_SCHEDULES}, got {lr_schedule!r}")
         if loss not in LOSSES:
             raise ValueError(f"GNSSystem: loss must be one of {LOSSES}, got {loss!r}")
         if not 0.0 <= noise_correction <= 1.0:
@@ -142,6 +147,7 @@ class GNSSystem(L.LightningModule):
             lr_final=h.lr_final,
             decay_start=int(round(h.lr_decay_start * scale)),
             decay_end=int(round(h.lr_decay_end * scale)),
+            kind=h.get("lr_schedule", "exponential"),  # absent from checkpoints before 2026-12-06
         )
 
     #: Factor on the LR decay's start and end steps (1: as configured); set by :meth:`set_schedule_scale`.
