@@ -93,15 +93,19 @@ bench-train: install ## Training samples/s and steps/s (Lightning loop), e.g. AR
 
 SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
-fig9-mini: install ## Figure 9's 16 cells on the small preset, 2 parallel CPU jobs (~35-50 min), then the report
+FIG9_MINI_DIR ?= multirun/fig9_mini/main
+RADIUS_MINI_DIR ?= multirun/radius_mini/main
+fig9-mini: install ## Figure 9's 16 cells + seeds 1-2 of 64/5 and 32/5, 10k steps each, 16 test trajectories (~3 h on 2 cores; resumable: rerun to continue), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
-	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=multirun/fig9_mini/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.evaluation.report multirun/fig9_mini/$(SWEEP_STAMP)
+	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) $(ARGS)
+	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) \
+		model.latent_size=64,32 model.mp_steps=5 seed=1,2 $(ARGS)
+	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR)
 
-radius-mini: install ## Connection-radius sweep (5 radii, 64/5) on the small preset (~20-30 min), then the report
+radius-mini: install ## Connection-radius sweep (5 radii, 64/5, fig9-mini's recipe; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
-	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=multirun/radius_mini/$(SWEEP_STAMP) $(ARGS)
-	$(PY) -m gnsx.evaluation.report multirun/radius_mini/$(SWEEP_STAMP)
+	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=$(RADIUS_MINI_DIR) $(ARGS)
+	$(PY) -m gnsx.evaluation.report $(RADIUS_MINI_DIR)
 
 fig9: install ## Full figure 9 (WaterRamps, paper schedule), e.g. ARGS='hydra/launcher=slurm hydra.launcher.partition=gpu'
 	$(PY) train.py -m --config-dir sweeps --config-name fig9 hydra.sweep.dir=multirun/fig9/$(SWEEP_STAMP) $(ARGS)

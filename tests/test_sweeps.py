@@ -16,6 +16,7 @@ import imageio.v3 as iio
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from gnsx.evaluation.report import build_report, load_sweep
 from gnsx.training.pipeline import Diverged, as_divergence, one_line
@@ -45,8 +46,8 @@ def test_fig9_sweeps_are_the_papers_grid():
     for name in ("fig9", "fig9_mini"):
         cfg = _compose_sweep(name)
         grid = _grid(cfg)
-        assert grid["model.latent_size"] == ["128", "64", "32", "16"]
-        assert grid["model.mp_steps"] == ["10", "5", "3", "1"]
+        assert sorted(grid["model.latent_size"], key=int) == ["16", "32", "64", "128"]
+        assert sorted(grid["model.mp_steps"], key=int) == ["1", "3", "5", "10"]
         assert cfg.sweep.name == name and cfg.logger.group == name
         # "Embedding size" sizes the MLPs too; the rest is the simplified GNS.
         assert cfg.model.mlp_hidden_size == cfg.model.latent_size
@@ -54,6 +55,11 @@ def test_fig9_sweeps_are_the_papers_grid():
     full, mini = _compose_sweep("fig9"), _compose_sweep("fig9_mini")
     assert full.data.preset == "waterramps" and full.train.max_steps == 1_600_000
     assert mini.data.preset == "small" and mini.trainer.accelerator == "cpu" and mini.train.max_time is None
+    # The same recipe for every cell, on every test trajectory, resumable cell by cell (issue: figure 9 for real).
+    assert mini.train.max_steps == 10_000 and mini.evaluate.max_trajectories is None and mini.sweep.resume
+    raw = OmegaConf.to_container(OmegaConf.load(SWEEPS / "fig9_mini.yaml").hydra, resolve=False)
+    assert raw["sweep"]["subdir"] == "${hydra.job.override_dirname}"
+    assert "data.root" in raw["job"]["config"]["override_dirname"]["exclude_keys"]
     # Parallel jobs must not oversubscribe a 2-core machine.
     assert "Joblib" in mini.hydra.launcher._target_
     assert mini.hydra.launcher.n_jobs * mini.sweep.torch_threads <= 2
@@ -178,8 +184,28 @@ def test_grid_multirun_records_every_job_and_the_report_shows_them(tmp_path, tin
         else:
             assert "gnsx.perf.benchmark" in job["bench"]["error"]
     # One wandb run per job, the failed one included.
-    for job_dir in sweep_dir.glob("[0-9]*"):
+    job_dirs = sorted(sweep_dir.glob("*model.latent_size=*"))
+    assert len(job_dirs) == 4  # one folder per cell, named by its overrides (resumable)
+    for job_dir in job_dirs:
         assert len(list((job_dir / "wandb").glob("offline-run-*/*.wandb"))) == 1
+
+    # Resumable: a rerun skips the finished cells untouched; a cell killed after its checkpoint resumes there.
+    finished = {name: (sweep_dir / results[name]["run_dir"]).resolve() / "results.json" for name in names[1:]}
+    before = {name: path.read_text() for name, path in finished.items()}
+    killed = finished[names[-1]]
+    killed.unlink()
+    again = _multirun(
+        tmp_path, tiny_dataset, sweep_dir,
+        ["hydra/launcher=sequential", "model.latent_size=8,16", "model.mp_steps=1,2", *FAIL_FIRST_CELL],
+    )  # fmt: skip
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    log = again.stdout + again.stderr
+    assert (
+        log.count("skipped (sweep.resume)") == 2 and log.count("resuming from its checkpoints/last.ckpt") == 1
+    )
+    for name in names[1:-1]:
+        assert finished[name].read_text() == before[name]
+    assert json.loads(killed.read_text())["status"] == "ok"
 
     outputs = build_report(sweep_dir)
     grid = iio.imread(outputs["grid"])

@@ -32,7 +32,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from lightning.fabric.utilities.rank_zero import rank_zero_only
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from gnsx.core import runstate
 from gnsx.core.atomic import write_json
@@ -686,6 +686,15 @@ def run_training(cfg: DictConfig) -> float | None:
     run_dir = Path(hydra_cfg.runtime.output_dir)
     identity = job_identity(cfg, hydra_cfg)
     results_path = run_dir / "results.json"
+    if OmegaConf.select(cfg, "sweep.resume", default=False):
+        done = finished_result(results_path)
+        if done is not None:
+            log.info("%s: finished earlier (test rollout MSE %.4g): skipped (sweep.resume)", run_dir, done)
+            return done
+        if (run_dir / "checkpoints" / "last.ckpt").is_file() and cfg.train.ckpt_path is None:
+            log.info("%s: resuming from its checkpoints/last.ckpt (sweep.resume)", run_dir)
+            with open_dict(cfg):
+                cfg.train.ckpt_path = str(run_dir)
     writer = rank_zero_only.rank == 0  # DDP: one process writes the results
     bad_input: GnsxError | None = None
     datamodule: ParticleDataModule | None = None
@@ -743,6 +752,17 @@ def run_training(cfg: DictConfig) -> float | None:
         if cfg.logger.wandb:
             _finish_wandb(results)
     return result
+
+
+def finished_result(results_path: Path) -> float | None:
+    """The test rollout MSE of a job that finished in this folder before (``status`` ok and a finite test
+    rollout MSE in its results.json), or None: what a resumable sweep (``sweep.resume``) skips."""
+    try:
+        results = json.loads(results_path.read_text())
+        value = float(results["test"]["rollout_mse"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return value if results.get("status") == "ok" and math.isfinite(value) else None
 
 
 def _run_dir_of(ckpt_path: str | None) -> Path | None:
