@@ -21,6 +21,7 @@ from gnsx.evaluation.report import (
     pareto_front,
     pick_for_budget,
     speed_source,
+    split_seeds,
     swept_axes,
     table_rows,
     versus_best,
@@ -354,3 +355,29 @@ def test_budget_pick_leads_the_report_and_is_marked(spread_sweep, capsys):
     plain = build_report(spread_sweep, wandb_mode="disabled")
     assert "The model for the budget" not in plain["markdown"].read_text()
     assert _blue_pixels(plain["grid"]) == 0 and _blue_pixels(plain["speed_vs_error"]) == 0
+
+
+def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep):
+    """A cell trained with several seeds shows its lowest seed in the grid and table, and its seed spread in
+    report.md next to the cells that cannot be told apart from the paper's 64/5 (paired over trajectories)."""
+    best = np.array([0.010, 0.020, 0.005, 0.040])
+    for number, (seed, factor) in enumerate([(1, 1.1), (2, 0.95)], start=5):
+        folder = _job(
+            spread_sweep, number, _with_rows(_ok(64, 5, 0.0, ms=20.0), list(best * factor), [0.05] * 4)
+        )
+        config = json.loads((folder / ".hydra" / "config.yaml").read_text())
+        (folder / ".hydra" / "config.yaml").write_text(json.dumps(config | {"seed": seed}))
+    jobs = load_sweep(spread_sweep)
+    primary, repeats = split_seeds(jobs)
+    assert len(primary) == 5 and sorted(j.seed for j in repeats) == [1, 2]
+    assert next(j for j in primary if j.cell[:2] == (64, 5)).seed is None  # the unseeded (default) run first
+    outputs = build_report(spread_sweep, wandb_mode="disabled")
+    markdown = outputs["markdown"].read_text()
+    assert "## Seed spread" in markdown and "| 64/5 |" in markdown
+    means = [float(np.mean(best * f)) for f in (1.0, 1.1, 0.95)]
+    assert f"{np.mean(means):.3e}" in markdown and f"{np.std(means, ddof=1):.2e}" in markdown
+    assert "## Against the paper's cell (64/5)" in markdown
+    against = markdown.split("## Against the paper's cell (64/5)")[1].split("##")[0]
+    assert "64/1" in against.split("cannot be told apart from 64/5")[1].split("\n")[0]
+    assert "16/1" in against.split("worse than 64/5")[1].split("\n")[0] and "raw network" in markdown
+    assert f"from {min(float(np.mean(best)), 0.03):.3e}" in markdown  # across cells: lowest seeds only

@@ -36,6 +36,7 @@ from gnsx.evaluation.report.jobs import (
     load_job,
     load_sweep,
     speed_source,
+    split_seeds,
     swept_axes,
 )
 from gnsx.evaluation.report.plots import (
@@ -51,6 +52,9 @@ from gnsx.evaluation.report.tables import (
     MARKDOWN_COLUMNS,
     log_wandb_table,
     markdown_table,
+    reference_lines,
+    rules_line,
+    seed_lines,
     table_rows,
     write_csv,
     write_markdown,
@@ -77,6 +81,10 @@ __all__ = [
     "markdown_table",
     "pareto_front",
     "pick_for_budget",
+    "reference_lines",
+    "rules_line",
+    "seed_lines",
+    "split_seeds",
     "plot_grid",
     "plot_radius",
     "plot_speed_error",
@@ -105,7 +113,9 @@ def build_report(
     ``report.md`` and is marked in the grid (blue frame, "budget pick") and the scatter (blue star).
     """
     sweep_dir = Path(sweep_dir)
-    jobs = load_sweep(sweep_dir)
+    every_seed = load_sweep(sweep_dir)
+    # One job per cell (its lowest seed) in the grid, scatter and table; the other seeds in "Seed spread".
+    jobs, _ = split_seeds(every_seed)
     pick = pick_for_budget(jobs, budget, budget_key) if budget is not None else None
     out = Path(out_dir) if out_dir is not None else sweep_dir / "report"
     out.mkdir(parents=True, exist_ok=True)
@@ -119,6 +129,8 @@ def build_report(
     rows = table_rows(jobs)
     outputs = dict(pictures)
     outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md", pick)
+    extra = [rules_line(jobs), "", *reference_lines(jobs, highlight), *seed_lines(every_seed)]
+    outputs["markdown"].write_text(outputs["markdown"].read_text().rstrip("\n") + "\n\n" + "\n".join(extra))
     outputs["csv"] = write_csv(rows, out / "results.csv")
     if project is None:
         project = _job_config(jobs[0].folder).get("logger", {}).get("project", "gnsx")

@@ -54,7 +54,14 @@ def versus_best(jobs: Sequence[Job], key: str = "rollout_mse") -> dict[int, tupl
         spread known); method ``"paired"`` (:func:`gnsx.evaluation.spread.compare` over the test trajectories both
         jobs' rows share, at least 2), ``"2se"`` (the jobs' mean ± 2 SE intervals overlap or not) or None.
     """
-    best = best_job(jobs, key)
+    return versus_reference(best_job(jobs, key), jobs, key, "best")
+
+
+def versus_reference(
+    best: Job | None, jobs: Sequence[Job], key: str = "rollout_mse", own: str = "reference"
+) -> dict[int, tuple[str, str | None]]:
+    """:func:`versus_best` against any job ``best`` (e.g. the paper's 64/5 cell); ``best`` itself gets
+    ``(own, None)``."""
     out: dict[int, tuple[str, str | None]] = {}
     if best is None:
         return out
@@ -63,7 +70,7 @@ def versus_best(jobs: Sequence[Job], key: str = "rollout_mse") -> dict[int, tupl
         if not job.ok or _number(job.spread(key)[0]) is None:
             continue
         if job is best:
-            out[id(job)] = ("best", None)
+            out[id(job)] = (own, None)
             continue
         paired = compare(best.rows, job.rows, key) if best.rows and job.rows else None
         if paired is not None and paired["trajectories"] >= 2:
@@ -207,3 +214,25 @@ def _ratio_text(ratio: float | None, lo: float | None, hi: float | None) -> str:
     if ratio is None:
         return "n/a"
     return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else f"{ratio:.2f}x"
+
+
+# -- seeds: is a difference between cells larger than what a reseed moves? -----------------------------------
+def seed_groups(jobs: Sequence[Job], key: str = "rollout_mse") -> list[dict]:
+    """For every cell trained with several seeds (all ok): ``{"job": the lowest seed's job, "seeds", "values"
+    (the mean test ``key`` of each seed), "mean", "sd" (sample standard deviation over seeds), "se_within" (the
+    lowest seed's standard error over trajectories)}``, cells in the order of their first job."""
+    cells: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        if job.ok and _number(job.spread(key)[0]) is not None:
+            cells.setdefault(job.cell, []).append(job)
+    out = []
+    for members in cells.values():
+        if len(members) < 2:
+            continue
+        members = sorted(members, key=lambda j: j.seed or 0)
+        values = [float(j.spread(key)[0]) for j in members]
+        mean = sum(values) / len(values)
+        sd = (sum((v - mean) ** 2 for v in values) / (len(values) - 1)) ** 0.5
+        out.append({"job": members[0], "seeds": [j.seed for j in members], "values": values, "mean": mean,
+                    "sd": sd, "se_within": members[0].spread(key)[1]})  # fmt: skip
+    return out

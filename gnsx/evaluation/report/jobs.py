@@ -76,6 +76,15 @@ class Job:
     frame_truth_png: str | None = None
     sweep: str | None = None
     rows: list[dict] = field(default_factory=list)
+    #: Training seed (``seed`` of the job's config; None when unknown).
+    seed: int | None = None
+    #: The rules the test rollouts were scored with (results.json ``rules``; all off: the raw network).
+    rules: dict[str, bool] = field(default_factory=dict)
+
+    @property
+    def cell(self) -> tuple:
+        """The model the job trains, whatever its seed: ``(latent_size, mp_steps, radius)``."""
+        return (self.latent_size, self.mp_steps, self.radius)
 
     @property
     def ok(self) -> bool:
@@ -217,7 +226,29 @@ def load_job(folder: Path) -> Job:
         frame_truth_png=results.get("frame_truth_png"),
         sweep=results.get("sweep") or config.get("sweep", {}).get("name"),
         rows=[row for row in results.get("rows") or [] if isinstance(row, dict)],
+        seed=_int(config.get("seed")),
+        rules={str(k): bool(v) for k, v in (results.get("rules") or {}).items()},
     )
+
+
+def _int(value: Any) -> int | None:
+    try:
+        return int(value) if value is not None else None
+    except (TypeError, ValueError):
+        return None
+
+
+def split_seeds(jobs: Sequence[Job]) -> tuple[list[Job], list[Job]]:
+    """``(primary, repeats)``: one job per cell (its lowest seed: what the grid, scatter and table show) and
+    the other seeds of the cells trained more than once (what the seed-spread section shows)."""
+    primary: dict[tuple, Job] = {}
+    for job in sorted(jobs, key=lambda j: j.seed or 0):  # no seed recorded: the config default, 0
+        if job.latent_size is None and job.mp_steps is None and job.radius is None:
+            primary[("job", id(job))] = job  # a failed job with no model facts is its own cell
+        else:
+            primary.setdefault(job.cell, job)
+    kept = {id(j) for j in primary.values()}
+    return [j for j in jobs if id(j) in kept], [j for j in jobs if id(j) not in kept]
 
 
 def load_sweep(sweep_dir: str | Path) -> list[Job]:

@@ -18,9 +18,11 @@ from gnsx.evaluation.report.analysis import (
     best_job,
     budget_lines,
     pareto_front,
+    seed_groups,
     versus_best,
+    versus_reference,
 )
-from gnsx.evaluation.report.jobs import AXIS_LABELS, Job, _number, speed_source, swept_axes
+from gnsx.evaluation.report.jobs import AXIS_LABELS, Job, _number, speed_source, split_seeds, swept_axes
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
 
 # -- tables --------------------------------------------------------------------------------------------------
@@ -236,3 +238,65 @@ def log_wandb_table(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[st
     finally:
         run.finish()
     return folder
+
+
+# -- the paper's cell, seeds and what the errors measure ------------------------------------------------------
+def rules_line(jobs: Sequence[Job]) -> str:
+    """What the error axis measures: the raw network (no rule on any job's test rollouts) or which jobs had
+    rules on, named so that nobody reads a with-rules figure as the network's."""
+    with_rules = [j for j in jobs if j.ok and any(j.rules.values())]
+    if not with_rules:
+        return ("Every error is the raw network's rollout (held only by the walls and ramps, as the MPM is; no "
+                "rule of `rules=production`), and so is every speed: both measure the network alone.")  # fmt: skip
+    names = ", ".join(f"`{j.name}`" for j in with_rules)
+    return f"**Errors with rules** (model + rules, not the network alone) for: {names}."
+
+
+def reference_lines(jobs: Sequence[Job], cell: tuple[int, int] | None, key: str = "rollout_mse") -> list[str]:
+    """Which cells cannot be told apart from the reference cell (the paper's 64/5) on the test ``key``,
+    paired over the same trajectories (:func:`versus_reference`)."""
+    if cell is None:
+        return []
+    reference = next((j for j in jobs if j.ok and (j.latent_size, j.mp_steps) == tuple(cell)), None)
+    if reference is None:
+        return [f"The reference cell {cell[0]}/{cell[1]} has no finished job.", ""]
+    keys = swept_axes(jobs)
+    verdicts = versus_reference(reference, jobs, key)
+    groups: dict[str, list[str]] = {}
+    for job in jobs:
+        verdict = verdicts.get(id(job), ("", None))[0]
+        if verdict and verdict != "reference":
+            groups.setdefault(verdict, []).append(job.label(keys))
+    label = reference.label(keys)
+    lines = [f"## Against the paper's cell ({label})", ""]
+    names = {TIED: "cannot be told apart from", "worse": "worse than", "better": "better than",
+             "unknown": "no spread to compare with"}  # fmt: skip
+    for verdict in (TIED, "better", "worse", "unknown"):
+        if groups.get(verdict):
+            lines.append(f"- {names[verdict]} {label} ({key}, paired over test trajectories where both have "
+                         f"rows, else mean ± 2 SE): {', '.join(groups[verdict])}")  # fmt: skip
+    return lines + [""]
+
+
+def seed_lines(jobs: Sequence[Job], key: str = "rollout_mse") -> list[str]:
+    """The cells trained with several seeds: each seed's mean test ``key``, their mean and standard deviation
+    over seeds, beside the standard error over trajectories of one seed and the spread of the cells."""
+    groups = seed_groups(jobs, key)
+    if not groups:
+        return []
+    keys = swept_axes(jobs)
+    lines = ["## Seed spread", "",
+             f"| cell | seeds | {key} per seed | mean | sd over seeds | se over trajectories (lowest seed) |",
+             "|---|---|---|---|---|---|"]  # fmt: skip
+    for g in groups:
+        values = ", ".join(f"{v:.3e}" for v in g["values"])
+        se = "n/a" if g["se_within"] is None else f"{g['se_within']:.2e}"
+        lines.append(f"| {g['job'].label(keys)} | {', '.join(map(str, g['seeds']))} | {values} | "
+                     f"{g['mean']:.3e} | {g['sd']:.2e} | {se} |")  # fmt: skip
+    primary = [_number(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
+    primary = [v for v in primary if v is not None]
+    if len(primary) > 1:
+        lines += ["", f"Across cells (lowest seed each) the mean {key} runs from {min(primary):.3e} to "
+                  f"{max(primary):.3e}; a difference between two cells smaller than about twice the seed sd "
+                  "above is within what retraining moves."]  # fmt: skip
+    return lines + [""]
