@@ -30,17 +30,17 @@ STALE_S = 10 * 60.0
 INTERRUPTED = "interrupted"
 
 
-def process_start(pid: int) -> int | None:
-    """The start time of process ``pid`` in clock ticks since boot (Linux ``/proc``), or None if unknown."""
+def process_start(pid: int) -> float | None:
+    """When process ``pid`` started (seconds since the epoch, psutil), or None if there is no such process.
+
+    With the pid it names a process uniquely: a pid the OS reused belongs to a process started later.
+    (Records written before 2026-12-06 hold clock ticks since boot instead; they never match, which reads
+    their process as gone: right for the finished jobs they describe.)"""
+    import psutil
+
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    # The command name (field 2) is in parentheses and may hold spaces: split after its closing one.
-    fields = stat[stat.rfind(")") + 2 :].split()
-    try:
-        return int(fields[19])  # field 22 of the whole line: starttime
-    except (IndexError, ValueError):
+        return psutil.Process(int(pid)).create_time()
+    except (psutil.Error, ValueError, OverflowError):
         return None
 
 
@@ -55,27 +55,20 @@ def liveness() -> dict[str, Any]:
     }
 
 
-def pid_alive(pid: int, start: int | None = None) -> bool:
-    """Whether process ``pid`` runs on this host (and, when ``start`` is given, is the same process)."""
+def pid_alive(pid: int, start: float | None = None) -> bool:
+    """Whether process ``pid`` runs on this host (and, when ``start`` is given, is the same process: it
+    started then, :func:`process_start`); a zombie (finished, not yet reaped) does not run."""
+    import psutil
+
     try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # exists, owned by someone else
-    except (OSError, ValueError, OverflowError):
-        return False
-    if start is not None:
-        now = process_start(int(pid))
-        if now is not None and now != start:
+        process = psutil.Process(int(pid))
+        if start is not None and abs(process.create_time() - float(start)) > 0.01:
             return False  # the pid was reused
-    try:
-        state = Path(f"/proc/{int(pid)}/stat").read_text()
-        if state[state.rfind(")") + 2 :].startswith("Z"):
-            return False  # a zombie: finished, not yet reaped
-    except OSError:
-        pass
-    return True
+        return process.status() != psutil.STATUS_ZOMBIE
+    except psutil.AccessDenied:
+        return True  # exists, owned by someone else
+    except (psutil.Error, ValueError, OverflowError, TypeError):
+        return False
 
 
 def effective_status(results: dict[str, Any], now: float | None = None) -> str:

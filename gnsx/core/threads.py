@@ -14,8 +14,8 @@ is not handled (set ``threads=1`` or ``OMP_WAIT_POLICY=PASSIVE`` yourself on a m
 
 ``threads: auto`` (the default of ``train.py``) therefore takes the cores this process may run on
 (``os.sched_getaffinity``), shares them among the processes of this node (DDP ranks on the CPU, or the
-parallel jobs of a sweep), subtracts the cores other processes keep busy (measured over half a second from
-``/proc/stat`` while this process sleeps; the 1-minute load average where that file is missing) and rounds
+parallel jobs of a sweep), subtracts the cores other processes keep busy (measured over half a second by psutil while
+this process sleeps; the 1-minute load average where psutil cannot tell) and rounds
 to the nearest count, at least 1 and at most :data:`MAX_THREADS` (more threads do not speed up
 graphs of this size). ``threads: N`` sets N; ``threads: null`` leaves torch's default.
 """
@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import logging
 import os
-import time
-from pathlib import Path
 
 log = logging.getLogger("gnsx")
 
@@ -41,37 +39,20 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _cpu_times(cpus: set[int]) -> tuple[float, float] | None:
-    """``(busy, total)`` jiffies of ``cpus`` since boot, from ``/proc/stat`` (None where unreadable)."""
-    try:
-        lines = Path("/proc/stat").read_text().splitlines()
-    except OSError:
-        return None
-    busy = total = 0.0
-    for line in lines:
-        name, _, rest = line.partition(" ")
-        if not (name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus):
-            continue
-        values = [float(v) for v in rest.split()]
-        idle = values[3] + (values[4] if len(values) > 4 else 0.0)  # idle + iowait
-        busy += sum(values[:8]) - idle  # guest time is already in user time
-        total += sum(values[:8])
-    return (busy, total) if total > 0 else None
-
-
 def machine_load(window_s: float = 0.5) -> float:
-    """Cores kept busy by other processes: measured over ``window_s`` on this process's cores while it
-    sleeps (``/proc/stat``), else the 1-minute load average (0 where neither is known)."""
+    """Cores kept busy by other processes: psutil's busy share of each of this process's cores over
+    ``window_s`` while it sleeps, summed; else the 1-minute load average (0 where neither is known)."""
+    import psutil
+
     try:
-        cpus = os.sched_getaffinity(0)
+        cpus = sorted(os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        cpus = set(range(os.cpu_count() or 1))
-    before = _cpu_times(cpus)
-    if before is not None:
-        time.sleep(window_s)
-        after = _cpu_times(cpus)
-        if after is not None and after[1] > before[1]:
-            return len(cpus) * (after[0] - before[0]) / (after[1] - before[1])
+        cpus = list(range(os.cpu_count() or 1))
+    try:
+        busy = psutil.cpu_percent(interval=window_s, percpu=True)
+        return sum(busy[c] for c in cpus if c < len(busy)) / 100.0
+    except (OSError, RuntimeError):
+        pass
     try:
         return float(os.getloadavg()[0])
     except (AttributeError, OSError):

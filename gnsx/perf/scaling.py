@@ -314,6 +314,8 @@ def run_scaling(
         "device": str(dev),
         "device_name": _device_name(dev),
         "threads": torch.get_num_threads(),
+        # The BLAS/OpenMP pools of numpy and scipy beside torch's (threadpoolctl): what else may compete.
+        "thread_pools": _thread_pools(),
         "torch": torch.__version__,
         "load_average_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "radius": radius,
@@ -366,6 +368,14 @@ def run_scaling(
     results = {"meta": meta, "rows": rows, "skipped": skipped}
     results["linearity"] = linearity(rows)
     return results
+
+
+def _thread_pools() -> list[dict]:
+    """Each native thread pool loaded in this process (library, API, threads), from threadpoolctl."""
+    from threadpoolctl import threadpool_info
+
+    keys = ("internal_api", "prefix", "num_threads", "version")
+    return [{key: pool.get(key) for key in keys} for pool in threadpool_info()]
 
 
 def _device_name(device: torch.device) -> str:
