@@ -97,6 +97,9 @@ FIG9_MINI_DIR ?= multirun/fig9_mini/main
 RADIUS_MINI_DIR ?= multirun/radius_mini/main
 fig9-mini: install ## Figure 9's 16 cells + seeds 1-2 of 64/5 and 32/5, 10k steps each, 16 test trajectories (~3 h on 2 cores; resumable: rerun to continue), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
+	@# Cells finished in an earlier session and committed (docs/fig9/jobs/) are not trained again.
+	@mkdir -p $(FIG9_MINI_DIR); for job in docs/fig9/jobs/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(FIG9_MINI_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(FIG9_MINI_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) $(ARGS)
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) \
 		model.latent_size=64,32 model.mp_steps=5 seed=1,2 $(ARGS)

@@ -222,13 +222,22 @@ def load_job(folder: Path) -> Job:
         train_wall_s=_number(results.get("train_wall_s")),
         test=results.get("test") or {},
         bench=results.get("bench") or {},
-        frame_png=results.get("frame_png"),
-        frame_truth_png=results.get("frame_truth_png"),
+        frame_png=_here(folder, results.get("frame_png")),
+        frame_truth_png=_here(folder, results.get("frame_truth_png")),
         sweep=results.get("sweep") or config.get("sweep", {}).get("name"),
         rows=[row for row in results.get("rows") or [] if isinstance(row, dict)],
         seed=_int(config.get("seed")),
         rules={str(k): bool(v) for k, v in (results.get("rules") or {}).items()},
     )
+
+
+def _here(folder: Path, recorded: str | None) -> str | None:
+    """A picture the job recorded, found in its own folder when the recorded path is gone (the folder was
+    moved or copied, e.g. a finished cell restored from docs/fig9/jobs/)."""
+    if recorded is None or Path(recorded).is_file():
+        return recorded
+    local = folder / Path(recorded).name
+    return str(local) if local.is_file() else recorded
 
 
 def _int(value: Any) -> int | None:
