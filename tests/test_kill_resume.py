@@ -44,6 +44,7 @@ def _logged_steps(run_dir: Path) -> list[int]:
     return sorted(steps)
 
 
+@pytest.mark.slow  # end-to-end (~10-25 s): `make test-slow`; keeps `make test` under 5 min
 def test_sigkill_then_resume_with_one_override(tmp_path, tiny_dataset):
     start = time.monotonic()
     first, second = tmp_path / "first", tmp_path / "second"

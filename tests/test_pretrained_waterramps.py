@@ -45,6 +45,7 @@ def test_shipped_because_it_beats_the_baseline_on_16_test_trajectories(shipped):
     assert test["rollout_mse"] < test["baseline_mse"] and test["emd"] < test["baseline_emd"]
 
 
+@pytest.mark.slow  # end-to-end (~10-25 s): `make test-slow`; keeps `make test` under 5 min
 def test_recorded_scores_reproduce_on_a_regenerated_test_trajectory(shipped):
     """The first test trajectory, simulated again (12 s), gives the recorded baseline error (the same data)
     and the recorded one-step error (the same model); the 601-frame rollout is left to

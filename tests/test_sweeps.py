@@ -258,6 +258,7 @@ def _failing_and_working_job(tmp_path: Path, dataset: Path, launcher: str) -> Pa
     return sweep_dir
 
 
+@pytest.mark.slow  # end-to-end (~10-25 s): `make test-slow`; keeps `make test` under 5 min
 def test_submitit_local_launcher(tmp_path, tiny_dataset):
     """The Slurm launch path (pickled jobs, one subprocess each) through submitit's local executor."""
     sweep_dir = _failing_and_working_job(tmp_path, tiny_dataset, "slurm_local")

@@ -189,6 +189,7 @@ def test_config_has_no_unresolved_interpolations():
     assert cfg["data"]["root"] == "data/small"
 
 
+@pytest.mark.slow  # end-to-end (~10-25 s): `make test-slow`; keeps `make test` under 5 min
 def test_ddp_with_two_cpu_processes_over_gloo(tmp_path, tiny_dataset):
     run = _run_train(
         tmp_path,
