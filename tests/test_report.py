@@ -381,3 +381,16 @@ def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep):
     assert "64/1" in against.split("cannot be told apart from 64/5")[1].split("\n")[0]
     assert "16/1" in against.split("worse than 64/5")[1].split("\n")[0] and "raw network" in markdown
     assert f"from {min(float(np.mean(best)), 0.03):.3e}" in markdown  # across cells: lowest seeds only
+
+
+def test_speed_vs_error_bars_are_95_percent_t_intervals(spread_sweep):
+    from scipy.stats import t as student_t
+
+    from gnsx.evaluation.report.plots import _interval_half_width
+
+    jobs = {job.label(["latent_size", "mp_steps"]): job for job in load_sweep(spread_sweep)}
+    best = jobs["64/5"]  # four trajectories with rows
+    mean, se = best.spread("rollout_mse")
+    assert _interval_half_width(best) == pytest.approx(se * student_t.ppf(0.975, 3))
+    assert _interval_half_width(best) > 3 * se  # four trajectories: far wider than one SE
+    assert _interval_half_width(jobs["32/5"]) == 0.0  # no spread recorded: no bar

@@ -7,7 +7,8 @@ the Pareto front (:func:`plot_speed_error`) and error and speed against the radi
   told apart from the best cell (text in red when it does not beat the physics-free baseline), the paper's
   64/5 cell framed in green, failed jobs with their reason, and the ground truth's frame for reference. A
   sweep of one parameter (e.g. the radius) gives one row.
-* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log) with ±1 SE error bars, the Pareto front
+* ``speed_vs_error.png``: ms/frame against test rollout MSE (log-log) with 95% t intervals over the test
+  trajectories (mean ± t(n-1) SE), the Pareto front
   marked (no other job is both faster and more accurate), models that do not beat the baseline in red.
 * ``radius.png`` (when the radius varies): rollout and one-step error, and ms/frame, against the radius.
 """
@@ -181,12 +182,18 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
     fig, ax = plt.subplots(figsize=(7, 5))
     if points:
         xs, ys = np.array(points).T
-        se = np.array([job.spread("rollout_mse")[1] or 0.0 for job in shown])
+        half = np.array([_interval_half_width(job) for job in shown])
         # On a log axis the lower bar cannot reach zero: clip it just above.
-        ax.errorbar(xs, ys, yerr=[np.minimum(se, 0.99 * ys), se], fmt="none", ecolor="0.4", elinewidth=1,
+        ax.errorbar(xs, ys, yerr=[np.minimum(half, 0.99 * ys), half], fmt="none", ecolor="0.4", elinewidth=1,
                     capsize=3, zorder=2.5)  # fmt: skip
         losing = np.array([job.versus_baseline() == DOES_NOT_BEAT for job in shown])
-        ax.scatter(xs[~losing], ys[~losing], color="tab:blue", zorder=3, label="model (±1 SE)")
+        ax.scatter(
+            xs[~losing],
+            ys[~losing],
+            color="tab:blue",
+            zorder=3,
+            label="model (95% interval over test trajectories)",
+        )
         if losing.any():
             ax.scatter(xs[losing], ys[losing], color="red", marker="X", s=70, zorder=3,
                        label="does not beat the baseline")  # fmt: skip
@@ -262,3 +269,15 @@ def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _interval_half_width(job: Job, key: str = "rollout_mse") -> float:
+    """Half-width of the 95% t interval of the mean test ``key`` over the job's trajectories (0 when its
+    spread or trajectory count is unknown)."""
+    from scipy.stats import t as student_t
+
+    se = job.spread(key)[1]
+    n = _number(job.test.get("trajectories")) or len(job.rows)
+    if se is None or not n or n < 2:
+        return 0.0
+    return float(se * student_t.ppf(0.975, int(n) - 1))
