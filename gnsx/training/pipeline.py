@@ -210,12 +210,16 @@ def training_noise(cfg: DictConfig) -> dict[str, Any]:
     return out
 
 
+#: Where the connection radius comes from when ``model.radius`` is null.
+DATA_RADIUS = "the dataset's default_connectivity_radius"
+
+
 def connectivity_radius(cfg: DictConfig, meta: Metadata) -> tuple[float, str]:
     """The connection radius the model's graph uses and where it comes from (``model.radius``, or the
     dataset's ``default_connectivity_radius`` when that is null)."""
     if cfg.model.radius is not None:
         return float(cfg.model.radius), "model.radius"
-    return float(meta.default_connectivity_radius), "the dataset's default_connectivity_radius"
+    return float(meta.default_connectivity_radius), DATA_RADIUS
 
 
 def _short(values: list[float]) -> str:
@@ -391,13 +395,15 @@ def job_identity(cfg: DictConfig, hydra_cfg: DictConfig) -> dict[str, Any]:
 
 
 def model_summary(cfg: DictConfig, system: GNSSystem) -> dict[str, Any]:
-    """The model's name, architecture and effective radius (the dataset's when ``model.radius`` is null)."""
+    """The model's name, architecture, effective radius (the dataset's when ``model.radius`` is null), training
+    noise and normalisation, each setting with where it came from. Values are the built system's; sources are
+    the config's (:func:`connectivity_radius`, :func:`training_noise`)."""
     arch = architecture(cfg.model)
     arch["wall_clip"] = list(arch["wall_clip"])
     noise = training_noise(cfg)
     return {"name": str(cfg.model.name), **arch, "radius": float(system.hparams.radius),
-            "radius_source": "model.radius" if cfg.model.radius is not None
-            else "the dataset's default_connectivity_radius", "noise_std": float(system.hparams.noise_std),
+            "radius_source": "model.radius" if cfg.model.radius is not None else DATA_RADIUS,
+            "noise_std": float(system.hparams.noise_std),
             "noise_std_source": noise["noise_std_source"], "noise_decay": float(system.hparams.noise_decay),
             "noise_decay_source": noise["noise_decay_source"],
             "widen_stats_by_noise": bool(OmegaConf.select(cfg.model, "widen_stats_by_noise", default=False)),
