@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -109,6 +109,12 @@ radius-mini: install ## Connection-radius sweep (5 radii, 64/5, fig9-mini's reci
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
 	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=$(RADIUS_MINI_DIR) $(ARGS)
 	$(PY) -m gnsx.evaluation.report $(RADIUS_MINI_DIR)
+
+EQUAL_BUDGET_DIR ?= multirun/equal_budget/main
+equal-budget: install ## Simplified vs original GNS, 40 min of training each on 400 scenes, one after the other (~1 h 50 min; resumable), then figures 6-8
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 --train 400 --valid 8 --test 16
+	$(PY) train.py -m --config-dir sweeps --config-name equal_budget hydra.sweep.dir=$(EQUAL_BUDGET_DIR) $(ARGS)
+	$(PY) -m gnsx.evaluation.report.versus $(EQUAL_BUDGET_DIR) --data data/small_400 --out outputs/original-vs-simplified
 
 fig9: install ## Full figure 9 (WaterRamps, paper schedule), e.g. ARGS='hydra/launcher=slurm hydra.launcher.partition=gpu'
 	$(PY) train.py -m --config-dir sweeps --config-name fig9 hydra.sweep.dir=multirun/fig9/$(SWEEP_STAMP) $(ARGS)

@@ -73,7 +73,11 @@ def test_time_budget_shrinks_the_run_and_completes_the_schedule(caplog):
     assert trainer.global_step == budget.fitted
     assert module.lrs[-1] < 0.02  # decayed to ~lr_final, not cut short at lr ~ 1
     assert any("Time budget" in r.message for r in caplog.records)
-    assert budget.state_dict() == {"planned_steps": 10_000, "fitted": budget.fitted}
+    state = budget.state_dict()
+    assert state["planned_steps"] == 10_000 and state["fitted"] == budget.fitted
+    assert (
+        state["trained_s"] > 1.0
+    )  # the training time (the budget, give or take the load), kept for a resume
 
 
 def test_time_budget_leaves_a_run_that_fits_alone():
@@ -85,6 +89,44 @@ def test_time_budget_leaves_a_run_that_fits_alone():
     )  # fmt: skip
     trainer.fit(module)
     assert budget.fitted is None and trainer.global_step == 30 and module.schedule_scale == 1.0
+
+
+class _Validator(L.Callback):
+    """Pauses the clock for ``pause_s`` every ``every`` steps, as WallClockValidation does while it rolls out."""
+
+    def __init__(self, clock, every: int, pause_s: float):
+        self.clock, self.every, self.pause_s, self.pauses = clock, every, pause_s, 0
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if trainer.global_step % self.every == 0:
+            with self.clock.paused():
+                time.sleep(self.pause_s)
+            self.pauses += 1
+
+
+def test_a_training_time_budget_leaves_validation_out_and_stops_the_fit():
+    """count_validation=False: 1 s of training at ~100 steps/s, with 0.2 s pauses every 20 steps (~1 s of
+    validation in all). The fit stops near 1 s of training although its wall time is ~2 s, and the resumed
+    state carries the training time spent."""
+    module = _SlowModule(step_s=0.01, max_steps=10_000)
+    budget = TimeBudget(1.0, calibration_steps=20, safety=1.0, count_validation=False)
+    validator = _Validator(budget, every=20, pause_s=0.2)
+    trainer = L.Trainer(
+        max_steps=10_000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, callbacks=[budget, validator], limit_val_batches=0,
+    )  # fmt: skip
+    start = time.perf_counter()
+    trainer.fit(module)
+    wall = time.perf_counter() - start
+    summary = budget.summary()
+    assert validator.pauses >= 3
+    assert summary["validation_s"] == pytest.approx(0.2 * validator.pauses, rel=0.2)
+    assert 0.9 < summary["training_s"] < 1.25  # the budget, validation excluded
+    assert wall > summary["training_s"] + summary["validation_s"] * 0.9
+    assert module.lrs[-1] < 0.05  # the schedule was fitted to the training time, not to the wall time
+    resumed = TimeBudget(1.0, count_validation=False)
+    resumed.load_state_dict(budget.state_dict())
+    assert resumed.total_training_s() == pytest.approx(summary["training_s"], rel=0.05)
 
 
 def test_throughput_cli_reports_rates(tiny_dataset, tmp_path, capsys):

@@ -95,7 +95,7 @@ def check_train_config(cfg: DictConfig) -> None:
     correction = check_number(_get(cfg, "train.noise_correction", 0.0), "train.noise_correction")
     if not 0.0 <= correction <= 1.0:
         raise ConfigError(f"train.noise_correction={correction}", "must be in [0, 1]")
-    for key in ("gradient_clip_val", "checkpoint_every_minutes"):
+    for key in ("gradient_clip_val", "checkpoint_every_minutes", "val_every_minutes"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True, allow_none=True)
     from gnsx.training.system import LOSSES
 
@@ -111,6 +111,17 @@ def check_train_config(cfg: DictConfig) -> None:
             raise ConfigError(f"train.max_time={max_time}", "expected DD:HH:MM:SS, seconds or null") from None
         if not seconds > 0:
             raise ConfigError(f"train.max_time={max_time}", "must be a positive duration (or null)")
+    counts = _get(cfg, "train.budget_counts_validation", True)
+    if not isinstance(counts, bool):
+        raise ConfigError(f"train.budget_counts_validation={counts}", "must be true or false")
+    safety = check_number(_get(cfg, "train.budget_safety", 0.9), "train.budget_safety", positive=True)
+    if safety > 1:
+        raise ConfigError(f"train.budget_safety={safety}", "must be in (0, 1]")
+    if not counts and (max_time is None or not _get(cfg, "train.fit_to_max_time", False)):
+        raise ConfigError("train.budget_counts_validation=false",
+                          "needs train.max_time and train.fit_to_max_time=true (the budget it changes)")  # fmt: skip
+    if _get(cfg, "train.val_every_minutes") is not None and "ddp" in str(_get(cfg, "trainer.strategy", "")):
+        raise ConfigError("train.val_every_minutes", "validates in one process: not with a DDP strategy")
     precision = str(_get(cfg, "trainer.precision", "32-true"))
     if precision not in TRAINER_PRECISIONS:
         raise ConfigError(

@@ -331,13 +331,18 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
     trainer_args["precision"] = resolve_precision(requested, trainer_args.get("accelerator", "auto"))
     if str(requested) == "auto":
         log.info("Precision: %s (trainer.precision=auto, gnsx.training.precision)", trainer_args["precision"])
+    # Training time only (validation excluded): the TimeBudget stops the fit, as Lightning's Timer counts
+    # validation. Validation at intervals of training time replaces Lightning's loop (WallClockValidation).
+    counts_validation = bool(OmegaConf.select(train, "budget_counts_validation", default=True))
+    if OmegaConf.select(train, "val_every_minutes", default=None) is not None:
+        trainer_args["limit_val_batches"] = 0
     return L.Trainer(
         **trainer_args,
         plugins=[AtomicCheckpointIO()],
         gradient_clip_val=OmegaConf.select(train, "gradient_clip_val", default=None),
         gradient_clip_algorithm="norm",
         max_steps=int(train.max_steps),
-        max_time=train.max_time,
+        max_time=train.max_time if counts_validation or not train.fit_to_max_time else None,
         val_check_interval=int(train.val_every_n_steps),
         check_val_every_n_epoch=None,
         num_sanity_val_steps=0,
@@ -586,6 +591,24 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
     return datamodule
 
 
+def training_clock(cfg: DictConfig) -> TrainingClock:
+    """The run's clock: a :class:`TimeBudget` (a TrainingClock that also fits the run to ``train.max_time``)
+    when ``train.fit_to_max_time``, else a plain :class:`TrainingClock`.
+
+    ``train.budget_counts_validation: false`` makes ``max_time`` training time only (validation rollouts
+    excluded; the TimeBudget stops the fit), with ``train.budget_safety`` of the remaining time planned for.
+    """
+    train = cfg.train
+    if not (train.fit_to_max_time and train.max_time is not None):
+        return TrainingClock()
+    return TimeBudget(
+        parse_duration(train.max_time),
+        int(train.calibration_steps),
+        safety=float(OmegaConf.select(train, "budget_safety", default=0.9)),
+        count_validation=bool(OmegaConf.select(train, "budget_counts_validation", default=True)),
+    )
+
+
 def local_processes(cfg: DictConfig) -> int:
     """Training processes of this node that share its CPU cores (DDP ranks; 1 otherwise)."""
     devices = OmegaConf.select(cfg, "trainer.devices", default=1)
@@ -631,17 +654,23 @@ def _train_and_evaluate(
     system = build_system(cfg, datamodule)
     record["model_config"] = model_summary(cfg, system)
     record["parameters"] = system.simulator.num_parameters()
-    if cfg.train.fit_to_max_time and cfg.train.max_time is not None:
-        # A TimeBudget is a TrainingClock that also fits the run to its budget.
-        clock = TimeBudget(parse_duration(cfg.train.max_time), int(cfg.train.calibration_steps))
-    else:
-        clock = TrainingClock()
+    clock = training_clock(cfg)
+    callbacks = [clock]
+    val_every_minutes = OmegaConf.select(cfg.train, "val_every_minutes", default=None)
+    if val_every_minutes is not None:
+        from gnsx.training.curves import WallClockValidation
+
+        callbacks.append(WallClockValidation(
+            clock, 60.0 * float(val_every_minutes), run_dir / "curve.jsonl", gravity_per_frame(datamodule.metadata),
+            loss_every_n_steps=int(cfg.train.log_every_n_steps),
+        ))  # fmt: skip
+        record["curve"] = str(run_dir / "curve.jsonl")
 
     def beat(fields: dict) -> None:
         record.update(fields)
         write_json(run_dir / "results.json", record)
 
-    trainer = build_trainer(cfg, run_dir, loggers, callbacks=[clock, Heartbeat(beat)])
+    trainer = build_trainer(cfg, run_dir, loggers, callbacks=[*callbacks, Heartbeat(beat)])
     record["precision"] = str(trainer.precision)
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import contextmanager
 
 from lightning.pytorch.callbacks import Callback
 
@@ -42,6 +43,12 @@ def fitted_steps(max_steps: int, done: int, rate: float, remaining_s: float, saf
     return int(min(max_steps, done + max(0.0, rate * remaining_s * safety)))
 
 
+class Pause:
+    """How long a :meth:`TrainingClock.paused` block took (``seconds``, set when it ends)."""
+
+    seconds: float = 0.0
+
+
 class TrainingClock(Callback):
     """Wall time and optimizer steps of ``trainer.fit``; ``steps_per_s`` leaves validation rollouts out.
 
@@ -56,6 +63,17 @@ class TrainingClock(Callback):
         self._validation_start: float | None = None
         self.validation_s = 0.0
         self.validations = 0
+        self.trained_before_s = 0.0  # training seconds of the fits before a resume (kept in the checkpoint)
+
+    def state_dict(self) -> dict:
+        return {"trained_s": self.total_training_s()}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.trained_before_s = float(state_dict.get("trained_s") or 0.0)
+
+    def total_training_s(self) -> float:
+        """Training seconds of the whole run: this fit's and, after a resume, the earlier fits'."""
+        return self.trained_before_s + self.training_s()
 
     def on_train_start(self, trainer, pl_module) -> None:
         self._start = self._last = time.perf_counter()
@@ -63,6 +81,29 @@ class TrainingClock(Callback):
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
         self._last, self._last_step = time.perf_counter(), trainer.global_step
+
+    def training_s(self) -> float:
+        """Seconds of this fit spent training so far: wall time since the start less validation runs (0
+        before the start)."""
+        if self._start is None:
+            return 0.0
+        running = time.perf_counter() - self._validation_start if self._validation_start is not None else 0.0
+        return time.perf_counter() - self._start - self.validation_s - running
+
+    @contextmanager
+    def paused(self):
+        """Time spent inside is counted as validation, not training (for validation run by a callback
+        outside Lightning's loop, :class:`gnsx.training.curves.WallClockValidation`). Yields a
+        :class:`Pause` whose ``seconds`` is set on leaving."""
+        pause = Pause()
+        self._validation_start = time.perf_counter()
+        try:
+            yield pause
+        finally:
+            pause.seconds = time.perf_counter() - self._validation_start
+            self.validation_s += pause.seconds
+            self.validations += 1
+            self._validation_start = None
 
     def on_validation_start(self, trainer, pl_module) -> None:
         self._validation_start = time.perf_counter()
@@ -78,9 +119,13 @@ class TrainingClock(Callback):
 
     def summary(self) -> dict[str, float | int | None]:
         """``train_wall_s`` (s, validation included), ``train_steps`` (optimizer steps of this fit, a resumed
-        run counts only its own), ``steps_per_s`` (validation excluded; None before the first step)."""
+        run counts only its own), ``steps_per_s`` (validation excluded; None before the first step),
+        ``training_s`` (s of training of the whole run, validation excluded, earlier fits of a resumed run
+        included), ``validation_s`` and ``validations`` (this fit's)."""
         if self._start is None:
             return {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
+        timing = {"training_s": self.total_training_s(), "validation_s": self.validation_s,
+                  "validations": self.validations}  # fmt: skip
         wall = self._last - self._start
         steps = self._last_step - self._first_step
         training = wall - self.validation_s
@@ -88,6 +133,7 @@ class TrainingClock(Callback):
             "train_wall_s": wall,
             "train_steps": steps,
             "steps_per_s": steps / training if steps > 0 and training > 0 else None,
+            **timing,
         }
 
 
@@ -98,12 +144,23 @@ class TimeBudget(TrainingClock):
         budget_s: wall-clock seconds for the whole fit (validation included); None disables the callback.
         calibration_steps: steps timed before deciding.
         safety: fraction of the remaining time planned for (validation runs and rate noise take the rest).
+        count_validation: False makes ``budget_s`` training time only (validation runs excluded), the budget
+            of an equal-budget comparison: a slower model's longer validation rollouts then cost it no
+            training. This callback stops the fit when the training time reaches the budget (Lightning's
+            ``max_time`` counts validation, so the pipeline does not set it), and a resumed run counts the
+            training time before the interruption (kept in the checkpoint).
 
     The LightningModule must have ``set_schedule_scale(factor)`` (see
     :meth:`gnsx.training.system.GNSSystem.set_schedule_scale`).
     """
 
-    def __init__(self, budget_s: float | None, calibration_steps: int = 200, safety: float = 0.9):
+    def __init__(
+        self,
+        budget_s: float | None,
+        calibration_steps: int = 200,
+        safety: float = 0.9,
+        count_validation: bool = True,
+    ):
         if calibration_steps < 1:
             raise ValueError(f"TimeBudget: calibration_steps must be >= 1, got {calibration_steps}")
         if not 0 < safety <= 1:
@@ -112,16 +169,26 @@ class TimeBudget(TrainingClock):
         self.budget_s = budget_s
         self.calibration_steps = calibration_steps
         self.safety = safety
+        self.count_validation = count_validation
+        self.stop_s = None if count_validation else budget_s  # training seconds at which this stops the fit
+        self.replan_every = 500  # steps between re-plans when validation is not counted
         self.planned_steps: int | None = None  # the configured max_steps
         self.fitted: int | None = None  # the step count the schedule was fitted to (None: not shrunk)
 
     # -- checkpoint state: a resumed run keeps its fitted schedule -------------------------------------------
     def state_dict(self) -> dict:
-        return {"planned_steps": self.planned_steps, "fitted": self.fitted}
+        return {**super().state_dict(), "planned_steps": self.planned_steps, "fitted": self.fitted}
 
     def load_state_dict(self, state_dict: dict) -> None:
+        super().load_state_dict(state_dict)
         self.planned_steps = state_dict.get("planned_steps")
         self.fitted = state_dict.get("fitted")
+
+    def _elapsed(self) -> float:
+        """Seconds of the budget spent: the whole fit's wall time, or training time only."""
+        if self.count_validation:
+            return time.perf_counter() - self._start
+        return self.total_training_s()
 
     def _apply(self, trainer, pl_module) -> None:
         # The epoch loop holds the step limit (FitLoop.max_steps is a read-only view of it).
@@ -137,13 +204,22 @@ class TimeBudget(TrainingClock):
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
         super().on_train_batch_end(trainer, pl_module, outputs, batch, batch_idx)
-        if self.budget_s is None or self.fitted is not None or self._start is None:
+        if self.stop_s is not None and self._start is not None and self.total_training_s() >= self.stop_s:
+            if not trainer.should_stop:
+                log.info("Time budget: %.0f s of training spent at step %d; stopping", self.stop_s,
+                         trainer.global_step)  # fmt: skip
+            trainer.should_stop = True
+        if self.budget_s is None or self._start is None:
             return
         done = trainer.global_step - self._first_step
+        if self.fitted is not None:
+            if not self.count_validation and done > self.calibration_steps and done % self.replan_every == 0:
+                self._replan(trainer, pl_module, done)
+            return
         if done != self.calibration_steps:
             return
-        elapsed = time.perf_counter() - self._start
-        rate = done / elapsed
+        rate = done / self.training_s()
+        elapsed = self._elapsed()
         steps = fitted_steps(
             self.planned_steps, trainer.global_step, rate, self.budget_s - elapsed, self.safety
         )
@@ -165,9 +241,25 @@ class TimeBudget(TrainingClock):
             rate, self.fitted, self.planned_steps, self.budget_s, self.fitted, factor,
         )  # fmt: skip
 
+    def _replan(self, trainer, pl_module, done: int) -> None:
+        """Shrink the fitted steps when the training rate measured so far no longer fits them in the budget
+        (count_validation=False: the machine slowed down). Shrink only, by whole percents, so the schedule
+        moves rarely and a cap never cuts the run."""
+        rate = done / self.training_s()
+        steps = fitted_steps(
+            self.fitted, trainer.global_step, rate, self.budget_s - self._elapsed(), self.safety
+        )
+        if steps < 0.99 * self.fitted:
+            log.warning("Time budget: the rate fell to %.1f steps/s; training %d steps instead of %d", rate,
+                        steps, self.fitted)  # fmt: skip
+            self.fitted = max(steps, trainer.global_step + 1)
+            self._apply(trainer, pl_module)
+
     def on_validation_end(self, trainer, pl_module) -> None:
         """Re-plan with the measured cost of a validation run (shrink only, so a cap never cuts the run)."""
         super().on_validation_end(trainer, pl_module)
+        if not self.count_validation:
+            return  # validation costs no budget
         if self.validations == 0 or self.budget_s is None or self._start is None or self.fitted is None:
             return
         elapsed = time.perf_counter() - self._start
