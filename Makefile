@@ -103,11 +103,14 @@ fig9-mini: install ## Figure 9's 16 cells + seeds 1-2 of 64/5 and 32/5, 10k step
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) $(ARGS)
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) \
 		model.latent_size=64,32 model.mp_steps=5 seed=1,2 $(ARGS)
+	@# Every cell timed again together in this (now quiet) process: in-job timings ran beside another job.
+	$(PY) -m gnsx.evaluation.report.retime $(FIG9_MINI_DIR)
 	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR)
 
 radius-mini: install ## Connection-radius sweep (5 radii, 64/5, fig9-mini's recipe; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
 	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=$(RADIUS_MINI_DIR) $(ARGS)
+	$(PY) -m gnsx.evaluation.report.retime $(RADIUS_MINI_DIR)
 	$(PY) -m gnsx.evaluation.report $(RADIUS_MINI_DIR)
 
 EQUAL_BUDGET_DIR ?= multirun/equal_budget/main

@@ -89,3 +89,54 @@ def test_curve_file_keeps_the_last_row_per_step_and_names_a_bad_line(tmp_path):
     path.write_text(path.read_text() + "{not json\n")
     with pytest.raises(ValueError, match=r"curve.jsonl:5: not a JSON curve row"):
         read_curve(path)
+
+
+def test_the_versus_report_draws_figures_6_to_8_and_pairs_the_models(equal_budget_sweep, tmp_path):
+    from gnsx.evaluation.report.versus import main
+
+    _, dataset, sweep_dir = equal_budget_sweep
+    out = tmp_path / "versus"
+    assert main([str(sweep_dir), "--data", str(dataset), "--out", str(out)]) == 0
+    for name in (
+        "fig6_training_loss.png",
+        "fig7_validation.png",
+        "fig8_strip.png",
+        "report.md",
+        "versus.json",
+    ):
+        assert (out / name).stat().st_size > 0, name
+    summary = json.loads((out / "versus.json").read_text())
+    assert summary["models"] == ["original", "simplified"]  # the paper's figure-8 order
+    assert summary["paired"]["rollout_mse"]["trajectories"] == 1
+    assert {(c["model"], c["reaches"]) for c in summary["crossings"]} == {
+        ("original", "simplified"), ("simplified", "original")}  # fmt: skip
+    report = (out / "report.md").read_text()
+    assert "rollout_mse: simplified / original" in report
+    assert report.count("reached original's final") + report.count("reached simplified's final") == 2
+    import imageio.v3 as iio
+
+    strip = iio.imread(out / "fig8_strip.png")
+    assert strip.shape[0] == 3 * 192  # truth, original, simplified rows
+
+
+def test_figure_8_picks_the_median_trajectory_without_looking_at_the_winner():
+    from gnsx.evaluation.report.versus import median_trajectory
+
+    a = [{"trajectory": t, "rollout_mse": v} for t, v in enumerate([1.0, 5.0, 3.0, 9.0])]
+    b = [{"trajectory": t, "rollout_mse": v} for t, v in enumerate([1.0, 1.0, 3.0, 9.0])]
+    # means 1, 3, 3, 9: the lower middle of the sorted means is 3 (trajectory 1 sorts before 2)
+    assert median_trajectory([a, b]) == 1
+    assert median_trajectory([a, b[:1]]) == 0  # only trajectories every model has count
+
+
+def test_the_versus_report_refuses_a_sweep_without_two_finished_runs(tmp_path, capsys):
+    from gnsx.core.cli import run_main
+    from gnsx.evaluation.report import versus
+
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "metadata.json").write_text("{}")
+    (tmp_path / "sweep").mkdir()
+    assert run_main(versus.main, [str(tmp_path / "sweep"), "--data", str(tmp_path / "data"), "--out",
+                                  str(tmp_path / "out")], user_errors=(FileNotFoundError,)) == 2  # fmt: skip
+    assert "0 finished run(s) with a curve.jsonl" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing written

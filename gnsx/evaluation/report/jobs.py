@@ -285,3 +285,10 @@ def speed_source(jobs: Sequence[Job]) -> str:
     """``"bench"`` when every successful job has a benchmark at scale, else ``"test"`` (the test rollouts)."""
     ok = [j for j in jobs if j.ok]
     return "bench" if ok and all(j.ms_per_frame("bench") is not None for j in ok) else "test"
+
+
+def all_retimed(jobs: Sequence[Job]) -> bool:
+    """True when every successful job's ``bench`` was retimed with the others in one process
+    (:mod:`gnsx.evaluation.report.retime`), not inside the job."""
+    ok = [j for j in jobs if j.ok]
+    return bool(ok) and all(str(j.bench.get("timing", "")).startswith("retimed") for j in ok)

@@ -22,7 +22,15 @@ from gnsx.evaluation.report.analysis import (
     versus_best,
     versus_reference,
 )
-from gnsx.evaluation.report.jobs import AXIS_LABELS, Job, _number, speed_source, split_seeds, swept_axes
+from gnsx.evaluation.report.jobs import (
+    AXIS_LABELS,
+    Job,
+    _number,
+    all_retimed,
+    speed_source,
+    split_seeds,
+    swept_axes,
+)
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
 
 # -- tables --------------------------------------------------------------------------------------------------
@@ -144,7 +152,12 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
         f"Multirun directory: `{sweep_dir}`. Jobs: {len(jobs)} ({len(ok)} ok, {len(jobs) - len(ok)} failed).",
         f"Swept: {', '.join(AXIS_LABELS[k] for k in keys) or 'nothing among latent size, MP steps, radius'}.",
         "Speed and memory in the pictures: "
-        + ("one inference step at WaterRamps size (`bench`)." if source == "bench" else "the test rollouts."),
+        + ("one inference step at WaterRamps size (`bench`)" if source == "bench" else "the test rollouts")
+        + (
+            "; every job retimed together in one process (`python -m gnsx.evaluation.report.retime`)."
+            if source == "bench" and all_retimed(jobs)
+            else "."
+        ),
         "Errors: position MSE per coordinate over dynamic particles, test split (data units squared), mean ±"
         " standard error over the test trajectories. `baseline_ratio`: geometric mean over trajectories of"
         " the physics-free baseline's rollout MSE over the model's, with its 95% t interval (below 1: the"
