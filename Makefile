@@ -114,7 +114,7 @@ radius-mini: install ## Connection-radius sweep (5 radii, 64/5, fig9-mini's reci
 	$(PY) -m gnsx.evaluation.report $(RADIUS_MINI_DIR)
 
 EQUAL_BUDGET_DIR ?= multirun/equal_budget/main
-equal-budget: install ## Simplified vs original GNS, 40 min of training each on 400 scenes, one after the other (~1 h 50 min; resumable), then figures 6-8
+equal-budget: install ## Simplified vs original GNS, 32 min of training each on 400 scenes, one after the other (~1 h 35 min; resumable), then figures 6-8
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 --train 400 --valid 8 --test 16
 	$(PY) train.py -m --config-dir sweeps --config-name equal_budget hydra.sweep.dir=$(EQUAL_BUDGET_DIR) $(ARGS)
 	$(PY) -m gnsx.evaluation.report.versus $(EQUAL_BUDGET_DIR) --data data/small_400 --out outputs/original-vs-simplified
@@ -157,17 +157,26 @@ bench-cull: install ## ms/frame with and without exact culling, 5 scenes at Wate
 
 # The perceptual study (issue 14, the paper's figure 10): docs/study.md.
 STUDY ?= day-one
-STUDY_DIR = studies/$(STUDY)
-STUDY_ORIGINAL ?=
+STUDY_DIR ?= studies/$(STUDY)
 STUDY_TRAJECTORIES ?= 8
+# The default study is the paper's three methods: MPM, the original and the simplified GNS trained for the same
+# 32 minutes of training time (`make equal-budget`, docs/original-vs-simplified/), shipped in
+# pretrained/equal_budget/. Without them (or with STUDY_ORIGINAL= emptied): MPM vs the shipped simplified weights.
+EQUAL_BUDGET_SHIPPED := $(wildcard pretrained/equal_budget/original/model.ckpt)
+STUDY_ORIGINAL ?= $(EQUAL_BUDGET_SHIPPED)
+STUDY_SIMPLIFIED ?= $(if $(EQUAL_BUDGET_SHIPPED),pretrained/equal_budget/simplified/model.ckpt,pretrained/small/model.ckpt)
+STUDY_BUDGET ?= $(if $(EQUAL_BUDGET_SHIPPED),equal 32-minute CPU budget,)
 STUDY_COMMA := ,
-STUDY_CKPTS = $(if $(STUDY_ORIGINAL),[$(STUDY_ORIGINAL)$(STUDY_COMMA)pretrained/small/model.ckpt],pretrained/small/model.ckpt)
-study: install ## Build a perceptual study: MPM vs shipped simplified weights [vs STUDY_ORIGINAL=<run|.ckpt>] into studies/<STUDY>
+STUDY_CKPTS = $(if $(STUDY_ORIGINAL),[$(STUDY_ORIGINAL)$(STUDY_COMMA)$(STUDY_SIMPLIFIED)],$(STUDY_SIMPLIFIED))
+# Method names carry the budget the models were trained with (shown in the analysis, never to participants).
+STUDY_LABELS = $(if $(and $(STUDY_ORIGINAL),$(STUDY_BUDGET)),'labels=["original GNS 128/10$(STUDY_COMMA) $(STUDY_BUDGET)"$(STUDY_COMMA)"simplified GNS 64/5$(STUDY_COMMA) $(STUDY_BUDGET)"]',)
+STUDY_NAME = $(if $(and $(STUDY_ORIGINAL),$(STUDY_BUDGET)),--name '$(STUDY) ($(STUDY_BUDGET))',)
+study: install ## Build the perceptual study: MPM vs original vs simplified GNS (equal 32-minute CPU budget) into studies/<STUDY>
 	@[ ! -f $(STUDY_DIR)/answers.sqlite ] || { echo "$(STUDY_DIR) already has answers: choose another STUDY=<name>"; exit 2; }
 	@[ -f $(DATA)/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out $(DATA)
-	$(PY) evaluate.py 'checkpoint=$(STUDY_CKPTS)' data.root=$(DATA) max_trajectories=$(STUDY_TRAJECTORIES) threads=1 \
-		metrics.emd_every=0 metrics.timing_repeats=0 render.enabled=false logger=none hydra.run.dir=$(STUDY_DIR)/rollouts
-	$(PY) -m gnsx.study build --rollouts $(STUDY_DIR)/rollouts --out $(STUDY_DIR) --pairs-per-group $(STUDY_TRAJECTORIES) $(ARGS)
+	$(PY) evaluate.py 'checkpoint=$(STUDY_CKPTS)' $(STUDY_LABELS) data.root=$(DATA) max_trajectories=$(STUDY_TRAJECTORIES) \
+		threads=1 metrics.emd_every=0 metrics.timing_repeats=0 render.enabled=false logger=none hydra.run.dir=$(STUDY_DIR)/rollouts
+	$(PY) -m gnsx.study build --rollouts $(STUDY_DIR)/rollouts --out $(STUDY_DIR) --pairs-per-group $(STUDY_TRAJECTORIES) $(STUDY_NAME) $(ARGS)
 
 study-serve: install ## Run studies/<STUDY> in the browser at localhost:8000 (ARGS='--host 0.0.0.0': your local network)
 	$(PY) -m gnsx.study serve $(STUDY_DIR) $(ARGS)

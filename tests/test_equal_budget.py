@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from gnsx.evaluation.curve_file import first_time_below, read_curve
 
@@ -58,6 +59,9 @@ def test_both_models_train_for_the_same_training_time_and_validate_on_the_clock(
         assert all(row["rollout_mse"] > 0 and not row["rollout_mse_se"] < 0 for row in curve["val"])
         assert curve["train"] and all(row["loss"] > 0 for row in curve["train"])
         assert results["bench"]["ms_per_frame"] > 0 and results["test"]["rollout_mse"] > 0
+        # last.ckpt holds the weights the test evaluation scored: the final step, not the last periodic save
+        state = torch.load(job / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+        assert state["global_step"] == results["global_step"]
     simplified = json.loads((jobs["simplified"] / "results.json").read_text())
     original = json.loads((jobs["original"] / "results.json").read_text())
     assert simplified["model_config"]["noise_std_source"] == "model.noise_std"  # each model's own noise

@@ -129,6 +129,38 @@ def test_a_training_time_budget_leaves_validation_out_and_stops_the_fit():
     assert resumed.total_training_s() == pytest.approx(summary["training_s"], rel=0.05)
 
 
+class _SpeedsUp(_SlowModule):
+    """Slow (``slow_s`` per step) for the first ``slow_steps`` steps, as under a passing load, then fast."""
+
+    def __init__(self, slow_s: float, fast_s: float, slow_steps: int, max_steps: int):
+        super().__init__(slow_s, max_steps)
+        self.fast_s, self.slow_steps = fast_s, slow_steps
+
+    def training_step(self, batch, batch_idx):
+        if self.global_step >= self.slow_steps:
+            self.step_s = self.fast_s
+        return super().training_step(batch, batch_idx)
+
+
+def test_a_training_time_budget_grows_the_run_again_when_the_rate_recovers(caplog):
+    """Calibrated during a slow spell (20 ms/step), the run would stop after ~half its budget once steps
+    take 5 ms; the re-plan on the recent rate grows it back, so the budget is used (count_validation=False)."""
+    module = _SpeedsUp(slow_s=0.02, fast_s=0.005, slow_steps=40, max_steps=100_000)
+    budget = TimeBudget(2.0, calibration_steps=20, safety=0.95, count_validation=False)
+    budget.replan_every = 25
+    trainer = L.Trainer(
+        max_steps=100_000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, callbacks=[budget], limit_val_batches=0,
+    )  # fmt: skip
+    with caplog.at_level("WARNING", logger="gnsx"):
+        trainer.fit(module)
+    first = 20 + int(2.0 * 0.95 / 0.02)  # what the calibration alone would have fitted: ~115 steps
+    assert budget.fitted > 1.5 * first and trainer.global_step == budget.fitted
+    assert budget.summary()["training_s"] > 0.75 * 2.0
+    assert module.lrs[-1] < 0.05  # the grown schedule still completes
+    assert any("instead of" in r.message for r in caplog.records)
+
+
 def test_throughput_cli_reports_rates(tiny_dataset, tmp_path, capsys):
     from gnsx.perf.throughput import main
 

@@ -675,6 +675,11 @@ def _train_and_evaluate(
     log.info("Model: %s, %d parameters", cfg.model.name, record["parameters"])
     try:
         trainer.fit(system, datamodule=datamodule, ckpt_path=resolve_checkpoint(cfg.train.ckpt_path))
+        # The final weights into last.ckpt: Lightning's last.ckpt follows the step and wall-clock
+        # checkpoints, and a run whose fitted step count is not a multiple of checkpoint_every_n_steps ends
+        # between two of them (the equal-budget runs of 2026-12-06 left last.ckpt 435 and 630 steps before
+        # their end). The test evaluation below scores these weights; export and evaluate.py read last.ckpt.
+        trainer.save_checkpoint(run_dir / "checkpoints" / "last.ckpt")
     finally:
         record.update(clock.summary())
         record.update(schedule_summary(cfg, trainer, clock, system))

@@ -172,6 +172,8 @@ class TimeBudget(TrainingClock):
         self.count_validation = count_validation
         self.stop_s = None if count_validation else budget_s  # training seconds at which this stops the fit
         self.replan_every = 500  # steps between re-plans when validation is not counted
+        self.rate_window = 4  # re-plans the rate is measured over (~2,000 steps)
+        self._marks: list[tuple[float, int]] = []  # (training seconds, step) at the calibration and re-plans
         self.planned_steps: int | None = None  # the configured max_steps
         self.fitted: int | None = None  # the step count the schedule was fitted to (None: not shrunk)
 
@@ -219,6 +221,7 @@ class TimeBudget(TrainingClock):
         if done != self.calibration_steps:
             return
         rate = done / self.training_s()
+        self._marks = [(0.0, self._first_step), (self.training_s(), trainer.global_step)]
         elapsed = self._elapsed()
         steps = fitted_steps(
             self.planned_steps, trainer.global_step, rate, self.budget_s - elapsed, self.safety
@@ -242,16 +245,23 @@ class TimeBudget(TrainingClock):
         )  # fmt: skip
 
     def _replan(self, trainer, pl_module, done: int) -> None:
-        """Shrink the fitted steps when the training rate measured so far no longer fits them in the budget
-        (count_validation=False: the machine slowed down). Shrink only, by whole percents, so the schedule
-        moves rarely and a cap never cuts the run."""
-        rate = done / self.training_s()
+        """Re-fit the steps to the budget with the recent training rate (count_validation=False), both ways:
+        shrink when the rate fell, so the budget's cap never cuts the schedule, and grow (up to
+        ``max_steps``) when it rose again, so a slow spell early in the run does not leave budget unused.
+        The rate is measured over the last :attr:`rate_window` re-plans; the fit moves only when it is off by
+        more than 1% (shrink) or 2% (grow), so the schedule moves rarely."""
+        now = (self.training_s(), trainer.global_step)
+        self._marks.append(now)
+        then = self._marks[max(0, len(self._marks) - 1 - self.rate_window)]
+        if now[0] <= then[0] or now[1] <= then[1]:
+            return
+        rate = (now[1] - then[1]) / (now[0] - then[0])
         steps = fitted_steps(
-            self.fitted, trainer.global_step, rate, self.budget_s - self._elapsed(), self.safety
+            self.planned_steps, trainer.global_step, rate, self.budget_s - self._elapsed(), self.safety
         )
-        if steps < 0.99 * self.fitted:
-            log.warning("Time budget: the rate fell to %.1f steps/s; training %d steps instead of %d", rate,
-                        steps, self.fitted)  # fmt: skip
+        if steps < 0.99 * self.fitted or steps > 1.02 * self.fitted:
+            log.warning("Time budget: at %.1f steps/s now, training %d steps instead of %d", rate, steps,
+                        self.fitted)  # fmt: skip
             self.fitted = max(steps, trainer.global_step + 1)
             self._apply(trainer, pl_module)
 

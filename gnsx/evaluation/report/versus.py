@@ -151,18 +151,24 @@ def crossings(runs: dict[str, dict]) -> list[dict[str, Any]]:
         for b, run_b in runs.items():
             if a == b or not run_a["curve"]["val"] or not run_b["curve"]["val"]:
                 continue
-            final_b = run_b["curve"]["val"][-1]
+            final_a, final_b = run_a["curve"]["val"][-1], run_b["curve"]["val"][-1]
             reached = first_time_below(run_a["curve"]["val"], final_b["rollout_mse"])
+            # Whether the two final errors differ by more than their combined standard error.
+            se = math.hypot(final_a.get("rollout_mse_se") or 0.0, final_b.get("rollout_mse_se") or 0.0)
+            apart = abs(final_a["rollout_mse"] - final_b["rollout_mse"]) > se
             out.append({"model": a, "reaches": b, "level": final_b["rollout_mse"],
-                        "level_time_s": final_b["time_s"], "time_s": reached})  # fmt: skip
+                        "level_se": final_b.get("rollout_mse_se"), "level_time_s": final_b["time_s"],
+                        "time_s": reached, "finals_apart": apart})  # fmt: skip
     return out
 
 
 def crossing_line(item: dict) -> str:
-    level = f"{item['reaches']}'s final validation error ({item['level']:.3g} at {item['level_time_s'] / 60:.0f} min)"
+    level = (f"{item['reaches']}'s final validation error ({item['level']:.3g} ± {_fmt(item.get('level_se'), '.2g')} "
+             f"at {item['level_time_s'] / 60:.0f} min)")  # fmt: skip
+    caveat = "" if item.get("finals_apart", True) else " The two final errors are within 1 SE of each other."
     if item["time_s"] is None:
-        return f"- {item['model']} never reached {level} within its budget."
-    return f"- {item['model']} first reached {level} at {item['time_s'] / 60:.1f} min of training."
+        return f"- {item['model']} never reached {level} within its budget.{caveat}"
+    return f"- {item['model']} first reached {level} at {item['time_s'] / 60:.1f} min of training.{caveat}"
 
 
 def median_trajectory(rows_by_model: Sequence[Sequence[dict]], key: str = "rollout_mse") -> int:
@@ -178,8 +184,15 @@ def median_trajectory(rows_by_model: Sequence[Sequence[dict]], key: str = "rollo
     return scores[(len(scores) - 1) // 2][1]
 
 
-def render_strip(runs: dict[str, dict], data_root: Path, trajectory: int, path: Path) -> Path:
-    """Figure 8: ground truth and each model's raw rollout (final weights) every :data:`STRIP_EVERY` frames."""
+def render_strip(
+    runs: dict[str, dict],
+    data_root: Path,
+    trajectory: int,
+    path: Path,
+    checkpoints: dict[str, Path] | None = None,
+) -> Path:
+    """Figure 8: ground truth and each model's raw rollout every :data:`STRIP_EVERY` frames, from each run's
+    ``checkpoints/last.ckpt`` (its final weights) unless ``checkpoints`` names another file for a model."""
     import torch
 
     from gnsx.data.store import load_metadata, open_split
@@ -193,7 +206,7 @@ def render_strip(runs: dict[str, dict], data_root: Path, trajectory: int, path: 
     types = np.array(traj.particle_type, dtype=np.int64)
     rollouts, titles = [true], ["truth"]
     for name, run in runs.items():
-        simulator = load_simulator(run["dir"] / "checkpoints" / "last.ckpt")
+        simulator = load_simulator((checkpoints or {}).get(name) or run["dir"] / "checkpoints" / "last.ckpt")
         frames = simulator.input_frames
         position = torch.from_numpy(true)
         with torch.inference_mode():
@@ -236,8 +249,15 @@ def model_table(runs: dict[str, dict]) -> list[str]:
     return lines
 
 
-def build(sweep_dir: Path, data_root: Path, out: Path, trajectory: int | None = None) -> dict[str, Any]:
-    """Every figure and table of the comparison into ``out``; returns what ``versus.json`` holds."""
+def build(
+    sweep_dir: Path,
+    data_root: Path,
+    out: Path,
+    trajectory: int | None = None,
+    checkpoints: dict[str, Path] | None = None,
+) -> dict[str, Any]:
+    """Every figure and table of the comparison into ``out``; returns what ``versus.json`` holds.
+    ``checkpoints``: model name -> the weights figure 8 draws (default: each run's last.ckpt)."""
     runs = load_runs(sweep_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(runs)
@@ -248,7 +268,7 @@ def build(sweep_dir: Path, data_root: Path, out: Path, trajectory: int | None = 
     }
     if trajectory is None:
         trajectory = median_trajectory([rows[n] for n in names])
-    pictures["fig8"] = render_strip(runs, data_root, trajectory, out / "fig8_strip.png")
+    pictures["fig8"] = render_strip(runs, data_root, trajectory, out / "fig8_strip.png", checkpoints)
     a, b = names[0], names[1]
     paired = {key: compare(rows[a], rows[b], key) for key in ("rollout_mse", "emd")}
     cross = crossings(runs)
@@ -256,6 +276,9 @@ def build(sweep_dir: Path, data_root: Path, out: Path, trajectory: int | None = 
         "sweep": str(sweep_dir),
         "models": names,
         "trajectory": trajectory,
+        "strip_checkpoints": {
+            n: str((checkpoints or {}).get(n) or runs[n]["dir"] / "checkpoints" / "last.ckpt") for n in names
+        },  # fmt: skip
         "paired": paired,
         "crossings": cross,
         "runs": {
@@ -334,10 +357,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--trajectory", type=int, default=None, help="test trajectory of figure 8 (default: median)"
     )
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="MODEL=PATH",
+                        help="weights figure 8 draws for MODEL (default: the run's last.ckpt); repeatable")  # fmt: skip
     args = parser.parse_args(argv)
+    checkpoints = {}
+    for item in args.checkpoint:
+        name, sep, path = item.partition("=")
+        if not sep or not Path(path).is_file():
+            raise FileNotFoundError(f"--checkpoint {item}: expected MODEL=PATH of an existing checkpoint")
+        checkpoints[name] = Path(path)
     if not (args.data / "metadata.json").is_file():
         raise FileNotFoundError(f"--data {args.data}: no gnsx dataset here (metadata.json missing)")
-    summary = build(args.sweep, args.data, args.out, args.trajectory)
+    summary = build(args.sweep, args.data, args.out, args.trajectory, checkpoints)
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out} ({', '.join(summary['pictures'].values())}, report.md, versus.json)")
     return 0
