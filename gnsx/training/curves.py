@@ -19,25 +19,12 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.evaluation.curve_file import append_row, read_rows
-from gnsx.evaluation.scoring import evaluate_trajectory, position_mse
+from gnsx.evaluation.scoring import baseline_errors, evaluate_trajectory
 from gnsx.evaluation.spread import mean_se
-from gnsx.model.rollout import physics_free_baseline
 from gnsx.training.time_budget import TrainingClock
 
 log = logging.getLogger("gnsx")
-
-
-def baseline_mse(trajectory: dict, input_frames: int, gravity: torch.Tensor, bounds) -> float:
-    """The physics-free baseline's rollout MSE on one trajectory (``position [T, N, D]``, ``particle_type
-    [N]``), rolled out from its first ``input_frames`` true frames."""
-    position, particle_type = trajectory["position"], trajectory["particle_type"]
-    initial = position[:input_frames].transpose(0, 1)
-    predicted = physics_free_baseline(
-        initial, particle_type, position.shape[0] - input_frames, gravity, bounds
-    )
-    return position_mse(predicted, position[input_frames:], particle_type != KINEMATIC_PARTICLE_ID)
 
 
 class WallClockValidation(Callback):
@@ -47,7 +34,6 @@ class WallClockValidation(Callback):
         clock: the run's training clock (paused while this validates).
         every_s: training seconds between validations; the run's end adds a last one.
         path: the ``curve.jsonl`` to append to.
-        gravity: ``[D]`` per-frame gravity of the baseline (:func:`gnsx.evaluation.scoring.gravity_per_frame`).
         loss_every_n_steps: steps per ``train`` row.
         onestep_stride: as :func:`gnsx.evaluation.scoring.evaluate_trajectory`.
 
@@ -60,7 +46,6 @@ class WallClockValidation(Callback):
         clock: TrainingClock,
         every_s: float,
         path: str | Path,
-        gravity: torch.Tensor,
         loss_every_n_steps: int = 50,
         onestep_stride: int = 10,
     ):
@@ -69,12 +54,11 @@ class WallClockValidation(Callback):
         self.clock = clock
         self.every_s = float(every_s)
         self.path = Path(path)
-        self.gravity = gravity
         self.loss_every_n_steps = int(loss_every_n_steps)
         self.onestep_stride = int(onestep_stride)
         self.next_s = self.every_s  # training seconds of the next validation
         self.last_validated_step: int | None = None
-        self._losses: list[float] = []
+        self._losses: list[torch.Tensor] = []  # detached, read once per train row (no device sync a step)
 
     def state_dict(self) -> dict:
         return {"next_s": self.next_s, "last_validated_step": self.last_validated_step}
@@ -89,9 +73,12 @@ class WallClockValidation(Callback):
     def on_train_start(self, trainer, pl_module) -> None:
         if not trainer.is_global_zero or any(r["kind"] == "baseline" for r in read_rows(self.path)):
             return
-        simulator = pl_module.simulator
+        # The scoring library's baseline (walls included), without its EMD: only the rollout MSE is drawn.
+        frames, metadata = pl_module.simulator.input_frames, trainer.datamodule.metadata
         values = [
-            baseline_mse(t, simulator.input_frames, self.gravity.cpu(), simulator.bounds.cpu())
+            baseline_errors(t["position"].numpy(), t["particle_type"].numpy(), frames, metadata, emd_every=0)[
+                1
+            ]["baseline_mse"]
             for t in trainer.datamodule.val_set
         ]
         mean, se = mean_se(values)
@@ -102,13 +89,13 @@ class WallClockValidation(Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
         loss = outputs.get("loss") if isinstance(outputs, dict) else outputs
         if loss is not None and not getattr(pl_module, "_skipping", False):
-            self._losses.append(float(loss.detach()))
+            self._losses.append(loss.detach())
         step = trainer.global_step
         if not trainer.is_global_zero:
             return
         if step % self.loss_every_n_steps == 0 and self._losses:
             self._write({"kind": "train", **self._position(trainer, pl_module),
-                         "loss": float(np.mean(self._losses))})  # fmt: skip
+                         "loss": float(torch.stack(self._losses).float().mean())})  # fmt: skip
             self._losses = []
         if self.clock.total_training_s() >= self.next_s:
             self.validate(trainer, pl_module)

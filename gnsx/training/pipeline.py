@@ -342,7 +342,7 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
         gradient_clip_val=OmegaConf.select(train, "gradient_clip_val", default=None),
         gradient_clip_algorithm="norm",
         max_steps=int(train.max_steps),
-        max_time=train.max_time if counts_validation or not train.fit_to_max_time else None,
+        max_time=train.max_time if counts_validation else None,  # config_checks: false needs fit_to_max_time
         val_check_interval=int(train.val_every_n_steps),
         check_val_every_n_epoch=None,
         num_sanity_val_steps=0,
@@ -660,10 +660,8 @@ def _train_and_evaluate(
     if val_every_minutes is not None:
         from gnsx.training.curves import WallClockValidation
 
-        callbacks.append(WallClockValidation(
-            clock, 60.0 * float(val_every_minutes), run_dir / "curve.jsonl", gravity_per_frame(datamodule.metadata),
-            loss_every_n_steps=int(cfg.train.log_every_n_steps),
-        ))  # fmt: skip
+        callbacks.append(WallClockValidation(clock, 60.0 * float(val_every_minutes), run_dir / "curve.jsonl",
+                                             loss_every_n_steps=int(cfg.train.log_every_n_steps)))  # fmt: skip
         record["curve"] = str(run_dir / "curve.jsonl")
 
     def beat(fields: dict) -> None:
