@@ -107,9 +107,15 @@ fig9-mini: install ## Figure 9's 16 cells + seeds 1-2 of 64/5 and 32/5, 10k step
 	$(PY) -m gnsx.evaluation.report.retime $(FIG9_MINI_DIR)
 	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR)
 
-radius-mini: install ## Connection-radius sweep (5 radii, 64/5, fig9-mini's recipe; resumable), then the report
+radius-mini: install ## Connection-radius sweep (5 radii x seeds 0-1, 64/5, fig9-mini's recipe; ~1 h 20 min on 2 cores; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
+	@# Radii finished in an earlier session and committed (docs/radius/jobs/) are not trained again, and
+	@# figure 9's 64/5 seeds (same recipe, the preset's default radius 0.035) are the sweep's reference point.
+	@mkdir -p $(RADIUS_MINI_DIR); for job in docs/radius/jobs/*/ docs/fig9/jobs/model.latent_size=64,model.mp_steps=5*/; do \
+		[ -d "$$job" ] || continue; \
+		[ -e "$(RADIUS_MINI_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(RADIUS_MINI_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=$(RADIUS_MINI_DIR) $(ARGS)
+	$(PY) train.py -m --config-dir sweeps --config-name radius_mini hydra.sweep.dir=$(RADIUS_MINI_DIR) seed=1 $(ARGS)
 	$(PY) -m gnsx.evaluation.report.retime $(RADIUS_MINI_DIR)
 	$(PY) -m gnsx.evaluation.report $(RADIUS_MINI_DIR)
 

@@ -181,6 +181,32 @@ def test_radius_sweep_gets_error_and_speed_against_radius(tmp_path):
     assert "RuntimeError: out of memory" in markdown
 
 
+def test_radius_sweep_compares_against_the_default_radius(tmp_path):
+    """Every job of a radius sweep is 64/5: the reference is the one at the dataset's default radius (the
+    radius figure 9's grid trains with), not whichever 64/5 job comes first; without it there is none."""
+    sweep = tmp_path / "radius"
+    best = np.array([0.010, 0.020, 0.005, 0.040])
+    factors = [np.array([3.0, 3.2, 2.9, 3.1]), 1.0, np.array([1.4, 1.2, 1.3, 0.85])]  # worse, -, tied
+    for number, (radius, factor) in enumerate(zip([0.023, 0.035, 0.058], factors)):
+        results = _with_rows(_ok(64, 5, 0.0, ms=5.0, radius=radius), list(best * factor), [0.05] * 4)
+        results["name"] = f"model.radius={radius}"
+        source = "the dataset's default_connectivity_radius" if radius == 0.035 else "model.radius"
+        results["model_config"]["radius_source"] = source
+        _job(sweep, number, results)
+    jobs = load_sweep(sweep)
+    assert [j.default_radius for j in sorted(jobs, key=lambda j: j.radius)] == [False, True, False]
+    markdown = build_report(sweep, wandb_mode="disabled")["markdown"].read_text()
+    against = markdown.split("## Against the paper's cell (R=0.035)")[1].split("##")[0]
+    assert "R=0.058" in against.split("cannot be told apart from R=0.035")[1].split("\n")[0]
+    assert "R=0.023" in against.split("worse than R=0.035")[1].split("\n")[0]
+    # Without a job at the default radius, no radius is called the reference.
+    import shutil
+
+    shutil.rmtree(sweep / "1")
+    markdown = build_report(sweep, wandb_mode="disabled")["markdown"].read_text()
+    assert "The reference cell 64/5 at the dataset's default radius has no finished job." in markdown
+
+
 def test_cli_prints_the_table(grid_sweep, capsys):
     assert main([str(grid_sweep), "--wandb", "disabled", "--highlight", "none"]) == 0
     printed = capsys.readouterr().out
@@ -381,6 +407,37 @@ def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep):
     assert "64/1" in against.split("cannot be told apart from 64/5")[1].split("\n")[0]
     assert "16/1" in against.split("worse than 64/5")[1].split("\n")[0] and "raw network" in markdown
     assert f"from {min(float(np.mean(best)), 0.03):.3e}" in markdown  # across cells: lowest seeds only
+
+
+def test_cells_against_seeds_says_whether_the_grid_ranks_beyond_retraining(tmp_path):
+    """The one-way F test of the report's seed section: cells 10x apart with seeds within 10% rank; cells
+    within their seeds' scatter do not; F and p are those of scipy's F distribution on log10 errors."""
+    from scipy.stats import f as f_dist
+
+    from gnsx.evaluation.report.analysis import cells_against_seeds
+
+    def sweep(name: str, cell_mse: dict, seed_factors: list[float]) -> list:
+        folder, number = tmp_path / name, 0
+        for (latent, mp), mse in cell_mse.items():
+            for seed, factor in enumerate(seed_factors if (latent, mp) == (64, 5) else [1.0]):
+                job = _job(folder, number, _ok(latent, mp, mse=mse * factor, ms=1.0 + number))
+                config = json.loads((job / ".hydra" / "config.yaml").read_text())
+                (job / ".hydra" / "config.yaml").write_text(json.dumps(config | {"seed": seed}))
+                number += 1
+        return load_sweep(folder)
+
+    apart = sweep("apart", {(64, 5): 0.01, (64, 1): 0.1, (16, 1): 1.0, (16, 5): 0.03}, [1.0, 1.1, 0.9])
+    test = cells_against_seeds(apart)
+    assert test["cells"] == 4 and test["df_cells"] == 3 and test["df_seeds"] == 2 and test["p"] < 0.01
+    logs = np.log10([0.01, 0.1, 1.0, 0.03])
+    seeds = np.log10([0.01, 0.011, 0.009])
+    assert test["F"] == pytest.approx(np.var(logs, ddof=1) / np.var(seeds, ddof=1))
+    assert test["p"] == pytest.approx(f_dist.sf(test["F"], 3, 2))
+    together = sweep("together", {(64, 5): 0.02, (64, 1): 0.025, (16, 1): 0.018}, [1.0, 2.0, 0.5])
+    assert cells_against_seeds(together)["p"] > 0.5
+    markdown = build_report(tmp_path / "together", wandb_mode="disabled")["markdown"].read_text()
+    assert "cannot be told apart from one another beyond the seed spread" in markdown
+    assert cells_against_seeds(sweep("one_seed", {(64, 5): 0.02, (64, 1): 0.03}, [1.0])) is None
 
 
 def test_speed_vs_error_bars_are_95_percent_t_intervals(spread_sweep):

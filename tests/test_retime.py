@@ -48,6 +48,32 @@ def test_retime_keeps_the_in_job_timing_and_marks_the_new_one(sweep, capsys):
     assert "skipped c: status failed" in capsys.readouterr().out
 
 
+def test_retime_counts_memory_exactly_whatever_ran_before(sweep):
+    """The retimed memory is one frame's tensor peak plus the weights, counted by the tensor tracker: the same
+    on a second retime (another order, other models run before it), unlike a shared process's peak RSS."""
+    from gnsx.evaluation.report.retime import job_model, job_scene
+    from gnsx.evaluation.tensor_memory import frame_memory
+
+    assert main([str(sweep), "--rounds", "1", "--repeats", "1", "--warmup", "0"]) == 0
+    first = {n: json.loads((sweep / n / "results.json").read_text())["bench"] for n in ("a", "b")}
+    assert main([str(sweep), "--rounds", "1", "--repeats", "1", "--warmup", "0"]) == 0
+    for name in ("a", "b"):
+        results = json.loads((sweep / name / "results.json").read_text())
+        bench = results["bench"]
+        assert bench["memory_measure"].startswith("tensor_tracker")
+        assert bench["peak_memory_mb"] == pytest.approx(first[name]["peak_memory_mb"], rel=1e-12)
+        assert bench["peak_memory_mb"] == pytest.approx(bench["frame_mb"] + bench["weights_mb"])
+        simulator, _ = job_model(sweep / name, results)
+        weights = sum(t.numel() * t.element_size() for t in [*simulator.parameters(), *simulator.buffers()])
+        assert bench["weights_mb"] == pytest.approx(weights / 1e6)
+    # A frame of more particles needs more memory (the count is not a constant).
+    simulator, _ = job_model(sweep / "a", json.loads((sweep / "a" / "results.json").read_text()))
+    bounds = simulator.bounds.cpu().numpy().astype("float64")
+    small = frame_memory(simulator, *job_scene({**IN_JOB, "num_particles": 100}, bounds, simulator.history))
+    large = frame_memory(simulator, *job_scene({**IN_JOB, "num_particles": 400}, bounds, simulator.history))
+    assert large["frame_mb"] > 2 * small["frame_mb"] > 0
+
+
 def test_retime_refuses_a_missing_folder_in_one_line(tmp_path, capsys):
     from gnsx.core.cli import run_main
     from gnsx.evaluation.report import retime

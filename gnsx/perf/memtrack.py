@@ -1,70 +1,16 @@
-"""Exact, deterministic accounting of the memory torch tensors hold, and what a rollout needs.
-
-Why not the process's peak RSS (what :func:`gnsx.evaluation.timing.measure_inference` reports on the CPU): glibc
-keeps freed heap and reuses it without the RSS moving, and other work in the same process (a test suite)
-shifts it, so a comparison of two RSS peaks can neither prove nor disprove growth of a few MB. Here every
-aten operation run inside :class:`TensorMemoryTracker` is seen (a ``TorchDispatchMode``), each storage it
-*allocates* (an output whose storage is none of the inputs': views and in-place results are not new memory)
-is counted once, and a ``weakref.finalize`` on the storage takes it off when torch frees it. The peak of that
-count is exact for what it covers, the same on every run, and independent of the allocator.
-
-What it does not see: memory allocated outside torch operations (numpy arrays, e.g. scipy's neighbour
-search before ``torch.from_numpy``; the tensors ``torch.from_numpy`` wraps), scratch buffers inside one
-kernel, and tensors that existed before the tracker started (weights, inputs). Read it as the live tensor
-memory a computation creates.
-"""
+"""What a rollout needs, memory against frame count (:func:`rollout_memory`, :func:`rollout_growth`), counted
+exactly with :class:`gnsx.evaluation.tensor_memory.TensorMemoryTracker`; why not the process's peak RSS and
+what the tracker does not see: that module's docstring."""
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Sequence
 
 import torch
-from torch.utils._python_dispatch import TorchDispatchMode
-from torch.utils._pytree import tree_flatten
+
+from gnsx.evaluation.tensor_memory import TensorMemoryTracker
 
 _MB = 1e6
-
-
-def _storages(tree) -> list[torch.UntypedStorage]:
-    return [t.untyped_storage() for t in tree_flatten(tree)[0] if isinstance(t, torch.Tensor)]
-
-
-class TensorMemoryTracker(TorchDispatchMode):
-    """Counts the bytes of tensor storages allocated by torch operations inside ``with tracker:``.
-
-    Attributes:
-        current: bytes allocated inside the block and still alive.
-        peak: the largest ``current`` seen (bytes); :meth:`reset_peak` sets it to ``current``.
-        allocations: number of storages counted.
-    """
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.current = 0
-        self.peak = 0
-        self.allocations = 0
-
-    def _free(self, nbytes: int) -> None:
-        self.current -= nbytes
-
-    def reset_peak(self) -> None:
-        self.peak = self.current
-
-    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-        out = func(*args, **(kwargs or {}))
-        inputs = {s.data_ptr() for s in _storages((args, kwargs))}
-        counted = set()
-        for storage in _storages(out):
-            pointer, nbytes = storage.data_ptr(), storage.nbytes()
-            if nbytes == 0 or pointer in inputs or pointer in counted:
-                continue  # a view or an in-place result: no new memory
-            counted.add(pointer)
-            self.current += nbytes
-            self.allocations += 1
-            self.peak = max(self.peak, self.current)
-            weakref.finalize(storage, self._free, nbytes)
-        return out
 
 
 @torch.no_grad()

@@ -1,5 +1,6 @@
 """What a sweep's numbers say: the speed/error Pareto front (:func:`pareto_front`), the best job and whether
-each other job can be told apart from it (:func:`best_job`, :func:`versus_best`), and the model a scene needs,
+each other job can be told apart from it (:func:`best_job`, :func:`versus_best`), whether the cells differ
+beyond the seed spread at all (:func:`cells_against_seeds`), and the model a scene needs,
 the fastest within an error budget (:func:`pick_for_budget`, :func:`budget_lines`).
 
 Each job is compared with the best one (lowest mean rollout MSE): paired over the same test trajectories
@@ -19,7 +20,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from gnsx.evaluation.report.jobs import Job, _number, speed_source
+from gnsx.evaluation.report.jobs import Job, _number, speed_source, split_seeds
 from gnsx.evaluation.spread import TIED, compare
 
 
@@ -236,3 +237,42 @@ def seed_groups(jobs: Sequence[Job], key: str = "rollout_mse") -> list[dict]:
         out.append({"job": members[0], "seeds": [j.seed for j in members], "values": values, "mean": mean,
                     "sd": sd, "se_within": members[0].spread(key)[1]})  # fmt: skip
     return out
+
+
+def cells_against_seeds(jobs: Sequence[Job], key: str = "rollout_mse") -> dict | None:
+    """Whether the cells of a sweep differ by more than retraining moves one cell: a one-way F test on
+    log10 of the mean test ``key``.
+
+    The between-cell variance is that of the cells' lowest seeds (one job per cell, as the grid shows them);
+    each of those is one draw of its cell, so it holds the cells' own differences plus one seed's scatter.
+    The within-cell variance is pooled over the cells trained with several seeds (:func:`seed_groups`). When
+    the cells do not differ, the ratio F of the two is ~1; a small p says that the grid as a whole ranks
+    beyond the seed spread (it says nothing about any two particular cells). Logs, because errors spread in
+    ratios. Assumes one seed variance for every cell, estimated from the cells that have seeds.
+
+    Returns:
+        None with fewer than 2 cells or no cell with several seeds; else ``{"cells", "df_cells", "df_seeds",
+        "sd_cells", "sd_seeds" (sample sds of log10 key), "F", "p"}``.
+    """
+    from scipy import stats
+
+    groups = seed_groups(jobs, key)
+    primary = [_number(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
+    primary = [math.log10(v) for v in primary if v is not None and v > 0]
+    if len(primary) < 2 or not groups:
+        return None
+    df_seeds, within = 0, 0.0
+    for group in groups:
+        logs = [math.log10(v) for v in group["values"] if v > 0]
+        mean = sum(logs) / len(logs)
+        within += sum((v - mean) ** 2 for v in logs)
+        df_seeds += len(logs) - 1
+    if df_seeds < 1 or within <= 0:
+        return None
+    mean = sum(primary) / len(primary)
+    var_cells = sum((v - mean) ** 2 for v in primary) / (len(primary) - 1)
+    var_seeds = within / df_seeds
+    ratio = var_cells / var_seeds
+    return {"cells": len(primary), "df_cells": len(primary) - 1, "df_seeds": df_seeds,
+            "sd_cells": var_cells**0.5, "sd_seeds": var_seeds**0.5, "F": ratio,
+            "p": float(stats.f.sf(ratio, len(primary) - 1, df_seeds))}  # fmt: skip

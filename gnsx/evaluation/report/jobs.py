@@ -80,6 +80,9 @@ class Job:
     seed: int | None = None
     #: The rules the test rollouts were scored with (results.json ``rules``; all off: the raw network).
     rules: dict[str, bool] = field(default_factory=dict)
+    #: True when the radius is the dataset's own ``default_connectivity_radius`` (no ``model.radius`` set),
+    #: False when the config set it, None when the job does not say.
+    default_radius: bool | None = None
 
     @property
     def cell(self) -> tuple:
@@ -228,7 +231,15 @@ def load_job(folder: Path) -> Job:
         rows=[row for row in results.get("rows") or [] if isinstance(row, dict)],
         seed=_int(config.get("seed")),
         rules={str(k): bool(v) for k, v in (results.get("rules") or {}).items()},
+        default_radius=_default_radius(model.get("radius_source")),
     )
+
+
+def _default_radius(source: Any) -> bool | None:
+    """Whether results.json's ``model_config.radius_source`` names the dataset's default radius."""
+    if not isinstance(source, str):
+        return None
+    return "default_connectivity_radius" in source
 
 
 def _here(folder: Path, recorded: str | None) -> str | None:
@@ -274,6 +285,21 @@ def load_sweep(sweep_dir: str | Path) -> list[Job]:
         raise FileNotFoundError(f"{sweep_dir}: no job folders (subfolders with .hydra/ or results.json)")
     jobs = [load_job(p) for p in folders]
     return sorted(jobs, key=lambda j: (j.job is None, j.job if j.job is not None else 0, j.folder.name))
+
+
+def reference_jobs(jobs: Sequence[Job], cell: tuple[int, int] | None) -> list[Job]:
+    """The jobs (every seed) of the reference cell ``cell`` = (latent_size, mp_steps), e.g. the paper's 64/5.
+
+    In a radius sweep every job is that cell, so the reference is the cell at the dataset's own default radius
+    (the radius the figure 9 grid trains with); with no job at the default radius there is no reference,
+    rather than an arbitrary radius called "the paper's cell".
+    """
+    if cell is None:
+        return []
+    matching = [j for j in jobs if (j.latent_size, j.mp_steps) == tuple(cell)]
+    if len({j.radius for j in matching}) > 1:
+        matching = [j for j in matching if j.default_radius]
+    return matching
 
 
 def swept_axes(jobs: Sequence[Job]) -> list[str]:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from gnsx.evaluation.report.analysis import BudgetPick, _ratio_text, _with_se, pareto_front, versus_best
-from gnsx.evaluation.report.jobs import Job, _number, speed_source, swept_axes
+from gnsx.evaluation.report.jobs import Job, _number, reference_jobs, speed_source, swept_axes
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
 
 #: The paper's model (figure 9's green cell): (latent size, message-passing steps).
@@ -197,11 +197,15 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
         if losing.any():
             ax.scatter(xs[losing], ys[losing], color="red", marker="X", s=70, zorder=3,
                        label="does not beat the baseline")  # fmt: skip
+        reference = {id(j) for j in reference_jobs(shown, highlight)}
+        ringed = False
         for job, (x, y) in zip(shown, points):
             ax.annotate(job.label(keys), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
-            if highlight is not None and (job.latent_size, job.mp_steps) == tuple(highlight):
+            if id(job) in reference:
+                at = " at the default radius" if "radius" in keys else ""
                 ax.scatter([x], [y], s=220, facecolors="none", edgecolors="limegreen", linewidths=2, zorder=4,
-                           label=f"paper's {highlight[0]}/{highlight[1]}")  # fmt: skip
+                           label=None if ringed else f"paper's {highlight[0]}/{highlight[1]}{at}")  # fmt: skip
+                ringed = True
         if budget is not None and budget.pick in shown:
             x, y = points[shown.index(budget.pick)]
             ax.scatter([x], [y], marker="*", s=320, color=PICK_COLOUR, zorder=5, label="budget pick")

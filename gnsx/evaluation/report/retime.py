@@ -6,7 +6,9 @@ parallel launcher the other job trains on the second core, and figure 9's first 
 for 64/5 against 51 ms for 64/3. Here every job's final weights (``checkpoints/last.ckpt``) predict one frame
 of the same WaterRamps-size scene the job used (its ``bench``: particle count, spacing and domain scale), with
 the jobs interleaved in a new random order each round, so a burst of load hits every job alike; a job's figure
-is the median over rounds of each round's median.
+is the median over rounds of each round's median. Memory is counted exactly, not as the process's peak RSS
+(which depends on what the process ran before): the peak of one frame's tensors plus the weights
+(:func:`gnsx.evaluation.tensor_memory.frame_memory`).
 
 A committed job record without its checkpoint is timed as the untrained model its ``results.json``
 describes: the cost of a frame does not depend on the weights. Each job's ``results.json`` keeps the in-job
@@ -91,6 +93,7 @@ def retime(
     import torch
 
     from gnsx.core.threads import apply_threads
+    from gnsx.evaluation.tensor_memory import frame_memory
     from gnsx.evaluation.timing import measure_inference
 
     ready, skipped = timed_jobs(sweep_dir)
@@ -121,6 +124,8 @@ def retime(
                 m["medians"].append(measured["ms_per_frame"])
                 first.setdefault(name, measured)
             print(f"round {round_index + 1}/{rounds} done")
+        for m in models.values():
+            m["memory"] = frame_memory(m["simulator"], m["sequence"], m["types"])
     out = {}
     for name, m in models.items():
         measured = first[name]
@@ -129,7 +134,9 @@ def retime(
             "ms_per_frame": float(np.median(m["medians"])),
             "ms_per_frame_min": float(np.min(m["medians"])),
             "ms_per_frame_rounds": m["medians"],
-            "peak_memory_mb": measured.get("peak_memory_mb"),
+            # Exact and the same whatever ran before in this process (a shared process's peak RSS is not:
+            # it counted 53 MB for 64/5 here against 77 MB inside the job).
+            **m["memory"],
             "num_edges": measured.get("num_edges"),
             "timing": f"retimed with every job of the sweep in one process, interleaved ({rounds} rounds of "
             f"{repeats} frames after {warmup} warm-ups; median of the round medians)",

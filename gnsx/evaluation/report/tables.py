@@ -17,6 +17,7 @@ from gnsx.evaluation.report.analysis import (
     _ratio_text,
     best_job,
     budget_lines,
+    cells_against_seeds,
     pareto_front,
     seed_groups,
     versus_best,
@@ -27,6 +28,7 @@ from gnsx.evaluation.report.jobs import (
     Job,
     _number,
     all_retimed,
+    reference_jobs,
     speed_source,
     split_seeds,
     swept_axes,
@@ -270,10 +272,13 @@ def reference_lines(jobs: Sequence[Job], cell: tuple[int, int] | None, key: str 
     paired over the same trajectories (:func:`versus_reference`)."""
     if cell is None:
         return []
-    reference = next((j for j in jobs if j.ok and (j.latent_size, j.mp_steps) == tuple(cell)), None)
-    if reference is None:
-        return [f"The reference cell {cell[0]}/{cell[1]} has no finished job.", ""]
     keys = swept_axes(jobs)
+    # The lowest seed: the grid, scatter and table show that one.
+    candidates = sorted((j for j in reference_jobs(jobs, cell) if j.ok), key=lambda j: j.seed or 0)
+    reference = candidates[0] if candidates else None
+    if reference is None:
+        at = " at the dataset's default radius" if "radius" in keys else ""
+        return [f"The reference cell {cell[0]}/{cell[1]}{at} has no finished job.", ""]
     verdicts = versus_reference(reference, jobs, key)
     groups: dict[str, list[str]] = {}
     for job in jobs:
@@ -312,4 +317,12 @@ def seed_lines(jobs: Sequence[Job], key: str = "rollout_mse") -> list[str]:
         lines += ["", f"Across cells (lowest seed each) the mean {key} runs from {min(primary):.3e} to "
                   f"{max(primary):.3e}; a difference between two cells smaller than about twice the seed sd "
                   "above is within what retraining moves."]  # fmt: skip
+    test = cells_against_seeds(jobs, key)
+    if test is not None:
+        verdict = ("the cells differ beyond the seed spread" if test["p"] < 0.05 else
+                   "the cells cannot be told apart from one another beyond the seed spread")  # fmt: skip
+        lines += ["", f"Cells against seeds (one-way F test on log10 {key}): the {test['cells']} cells' lowest "
+                  f"seeds spread by sd {test['sd_cells']:.3f} decades, one cell's seeds by {test['sd_seeds']:.3f} "
+                  f"(pooled, {test['df_seeds']} df); F({test['df_cells']}, {test['df_seeds']}) = "
+                  f"{test['F']:.2f}, p = {test['p']:.2g}: {verdict}."]  # fmt: skip
     return lines + [""]
