@@ -383,7 +383,7 @@ def test_budget_pick_leads_the_report_and_is_marked(spread_sweep, capsys):
     assert _blue_pixels(plain["grid"]) == 0 and _blue_pixels(plain["speed_vs_error"]) == 0
 
 
-def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep):
+def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep, tmp_path):
     """A cell trained with several seeds shows its lowest seed in the grid and table, and its seed spread in
     report.md next to the cells that cannot be told apart from the paper's 64/5 (paired over trajectories)."""
     best = np.array([0.010, 0.020, 0.005, 0.040])
@@ -396,6 +396,13 @@ def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep):
     jobs = load_sweep(spread_sweep)
     primary, repeats = split_seeds(jobs)
     assert len(primary) == 5 and sorted(j.seed for j in repeats) == [1, 2]
+    # The scatter shows the other seeds as grey rings beside their cell (none without them).
+    from gnsx.evaluation.report.plots import plot_speed_error
+
+    grey = np.array([127, 127, 127])
+    with_seeds = iio.imread(plot_speed_error(primary, tmp_path / "a.png", repeats=repeats))[..., :3].astype(int)
+    alone = iio.imread(plot_speed_error(primary, tmp_path / "b.png"))[..., :3].astype(int)
+    assert (np.abs(with_seeds - grey).sum(-1) < 20).sum() > 20 + (np.abs(alone - grey).sum(-1) < 20).sum()
     assert next(j for j in primary if j.cell[:2] == (64, 5)).seed is None  # the unseeded (default) run first
     outputs = build_report(spread_sweep, wandb_mode="disabled")
     markdown = outputs["markdown"].read_text()

@@ -115,7 +115,7 @@ def build_report(
     sweep_dir = Path(sweep_dir)
     every_seed = load_sweep(sweep_dir)
     # One job per cell (its lowest seed) in the grid, scatter and table; the other seeds in "Seed spread".
-    jobs, _ = split_seeds(every_seed)
+    jobs, repeats = split_seeds(every_seed)
     pick = pick_for_budget(jobs, budget, budget_key) if budget is not None else None
     out = Path(out_dir) if out_dir is not None else sweep_dir / "report"
     out.mkdir(parents=True, exist_ok=True)
@@ -123,7 +123,7 @@ def build_report(
     pictures: dict[str, Path] = {}
     if any(j.frame_png for j in jobs) or {"latent_size", "mp_steps"} & set(keys):
         pictures["grid"] = plot_grid(jobs, out / "grid.png", highlight, pick.pick if pick else None)
-    pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight, pick)
+    pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight, pick, repeats)
     if "radius" in keys:
         pictures["radius"] = plot_radius(jobs, out / "radius.png")
     rows = table_rows(jobs)

@@ -165,10 +165,12 @@ def _axis_value(key: str, value) -> str:
 
 
 def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None = PAPER_CELL,
-                     budget: BudgetPick | None = None) -> Path:  # fmt: skip
-    """ms/frame against test rollout MSE (±1 SE error bars), log-log, every successful job labelled, the
+                     budget: BudgetPick | None = None, repeats: Sequence[Job] = ()) -> Path:  # fmt: skip
+    """ms/frame against test rollout MSE (95% interval bars), log-log, every successful job labelled, the
     Pareto front joined, jobs that do not beat the physics-free baseline in red; with a ``budget``, its pick
-    starred in blue (and the budget drawn when it bounds the rollout MSE)."""
+    starred in blue (and the budget drawn when it bounds the rollout MSE). ``repeats``: the other seeds of
+    cells trained more than once (:func:`split_seeds`), drawn as grey rings joined to their cell, so that the
+    seed spread stands beside the differences between cells."""
     import matplotlib.pyplot as plt
 
     source = speed_source(jobs)
@@ -179,7 +181,7 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
         if job.ok and ms is not None and mse is not None and ms > 0 and mse > 0:
             points.append((ms, mse))
             shown.append(job)
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, ax = plt.subplots(figsize=(9, 5))
     if points:
         xs, ys = np.array(points).T
         half = np.array([_interval_half_width(job) for job in shown])
@@ -211,13 +213,25 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
             ax.scatter([x], [y], marker="*", s=320, color=PICK_COLOUR, zorder=5, label="budget pick")
         if budget is not None and budget.key == "rollout_mse":
             ax.axhline(budget.budget, ls="--", lw=1, color=PICK_COLOUR, label=f"budget {budget.budget:.3g}")
+        seeds_drawn = False
+        for job in repeats:
+            ms, mse = job.ms_per_frame(source), job.rollout_mse
+            cell = next((i for i, j in enumerate(shown) if j.cell == job.cell), None)
+            if not job.ok or ms is None or mse is None or ms <= 0 or mse <= 0 or cell is None:
+                continue
+            ax.plot([points[cell][0], ms], [points[cell][1], mse], color="0.6", lw=0.8, zorder=2)
+            ax.scatter([ms], [mse], s=40, facecolors="none", edgecolors="tab:gray", linewidths=1.5, zorder=3,
+                       label=None if seeds_drawn else "another seed of the cell")  # fmt: skip
+            seeds_drawn = True
         front = pareto_front(points)
         # A staircase: between two front points, the best error reachable at that speed is the slower one's.
         ax.plot(xs[front], ys[front], "-o", drawstyle="steps-post", color="tab:red", mfc="none", ms=11,
                 zorder=2, label="Pareto front")  # fmt: skip
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.legend(fontsize=8)
+        _plain_log_ticks(ax.xaxis)
+        # Outside the axes: inside, it hides points wherever it goes.
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     else:
         ax.text(0.5, 0.5, "no successful job", ha="center", va="center", transform=ax.transAxes)
     failed = [j for j in jobs if not j.ok]
@@ -234,6 +248,16 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _plain_log_ticks(axis) -> None:
+    """Label a log axis at 1-2-5 steps in plain numbers: matplotlib's default labels every minor tick of a
+    short range as "3x10^1", and the labels of a decade overlap."""
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(ScalarFormatter())
+    axis.set_minor_formatter(NullFormatter())
 
 
 def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
