@@ -400,7 +400,9 @@ def test_seeds_of_a_cell_are_one_grid_cell_and_a_seed_spread_line(spread_sweep, 
     from gnsx.evaluation.report.plots import plot_speed_error
 
     grey = np.array([127, 127, 127])
-    with_seeds = iio.imread(plot_speed_error(primary, tmp_path / "a.png", repeats=repeats))[..., :3].astype(int)
+    with_seeds = iio.imread(plot_speed_error(primary, tmp_path / "a.png", repeats=repeats))[..., :3].astype(
+        int
+    )
     alone = iio.imread(plot_speed_error(primary, tmp_path / "b.png"))[..., :3].astype(int)
     assert (np.abs(with_seeds - grey).sum(-1) < 20).sum() > 20 + (np.abs(alone - grey).sum(-1) < 20).sum()
     assert next(j for j in primary if j.cell[:2] == (64, 5)).seed is None  # the unseeded (default) run first
