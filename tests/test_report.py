@@ -22,6 +22,7 @@ from gnsx.evaluation.report import (
     pick_for_budget,
     speed_source,
     split_seeds,
+    sweep_name,
     swept_axes,
     table_rows,
     versus_best,
@@ -193,8 +194,12 @@ def test_radius_sweep_compares_against_the_default_radius(tmp_path):
         source = "the dataset's default_connectivity_radius" if radius == 0.035 else "model.radius"
         results["model_config"]["radius_source"] = source
         _job(sweep, number, results)
+    # The reference point may come from figure 9's sweep: the report is still named after the radius sweep.
+    results = json.loads((sweep / "1" / "results.json").read_text())
+    (sweep / "1" / "results.json").write_text(json.dumps(results | {"sweep": "fig9_mini"}))
     jobs = load_sweep(sweep)
     assert [j.default_radius for j in sorted(jobs, key=lambda j: j.radius)] == [False, True, False]
+    assert sweep_name(jobs) == "unit" and sweep_name([]) == "sweep"
     markdown = build_report(sweep, wandb_mode="disabled")["markdown"].read_text()
     against = markdown.split("## Against the paper's cell (R=0.035)")[1].split("##")[0]
     assert "R=0.058" in against.split("cannot be told apart from R=0.035")[1].split("\n")[0]

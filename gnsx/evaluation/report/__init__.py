@@ -37,6 +37,7 @@ from gnsx.evaluation.report.jobs import (
     load_sweep,
     speed_source,
     split_seeds,
+    sweep_name,
     swept_axes,
 )
 from gnsx.evaluation.report.plots import (
@@ -85,6 +86,7 @@ __all__ = [
     "rules_line",
     "seed_lines",
     "split_seeds",
+    "sweep_name",
     "plot_grid",
     "plot_radius",
     "plot_speed_error",

@@ -302,6 +302,13 @@ def reference_jobs(jobs: Sequence[Job], cell: tuple[int, int] | None) -> list[Jo
     return matching
 
 
+def sweep_name(jobs: Sequence[Job], default: str = "sweep") -> str:
+    """The sweep most jobs belong to (a report may hold a few jobs of another sweep, e.g. figure 9's 64/5
+    seeds as the reference point of the radius sweep); ``default`` when no job says."""
+    names = [j.sweep for j in jobs if j.sweep]
+    return max(dict.fromkeys(names), key=names.count) if names else default
+
+
 def swept_axes(jobs: Sequence[Job]) -> list[str]:
     """The model axes (latent_size, mp_steps, radius) taking more than one value across the jobs."""
     return [key for key in AXES if len({getattr(j, key) for j in jobs if getattr(j, key) is not None}) > 1]

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from gnsx.evaluation.report.analysis import BudgetPick, _ratio_text, _with_se, pareto_front, versus_best
-from gnsx.evaluation.report.jobs import Job, _number, reference_jobs, speed_source, swept_axes
+from gnsx.evaluation.report.jobs import Job, _number, reference_jobs, speed_source, sweep_name, swept_axes
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
 
 #: The paper's model (figure 9's green cell): (latent size, message-passing steps).
@@ -140,7 +140,7 @@ def plot_grid(jobs: Sequence[Job], path: Path, highlight: tuple[int, int] | None
             else:
                 ax.axis("off")
     what = "benchmark at WaterRamps size" if source == "bench" else "test rollouts"
-    sweep = next((j.sweep for j in jobs if j.sweep), "sweep")
+    sweep = sweep_name(jobs)
     title = f"{sweep}: one test frame per model; ms/frame and peak MB from the {what}"
     fig.suptitle(title + "\ntest MSE ± SE over trajectories; red: does not beat the physics-free baseline",
                  fontsize=10)  # fmt: skip
@@ -242,7 +242,7 @@ def plot_speed_error(jobs: Sequence[Job], path: Path, highlight: tuple[int, int]
     what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
     ax.set_xlabel(f"inference ms/frame ({what}, graph build included)")
     ax.set_ylabel("test rollout MSE (data units$^2$)")
-    ax.set_title(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: speed vs error", fontsize=11)
+    ax.set_title(f"{sweep_name(jobs)}: speed vs error", fontsize=11)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -292,7 +292,7 @@ def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
     ms_ax.set_ylabel(f"inference ms/frame ({what})")
     for ax in (err_ax, ms_ax):
         ax.grid(True, alpha=0.3)
-    fig.suptitle(f"{next((j.sweep for j in jobs if j.sweep), 'sweep')}: error and speed against radius")
+    fig.suptitle(f"{sweep_name(jobs)}: error and speed against radius")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

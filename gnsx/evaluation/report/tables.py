@@ -31,6 +31,7 @@ from gnsx.evaluation.report.jobs import (
     reference_jobs,
     speed_source,
     split_seeds,
+    sweep_name,
     swept_axes,
 )
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
@@ -147,7 +148,7 @@ def write_markdown(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[str
     source = speed_source(jobs)
     keys = swept_axes(jobs)
     ok = [j for j in jobs if j.ok]
-    sweep = next((j.sweep for j in jobs if j.sweep), sweep_dir.name)
+    sweep = sweep_name(jobs, sweep_dir.name)
     lines = [
         f"# Sweep report: {sweep}",
         "",
@@ -231,7 +232,7 @@ def log_wandb_table(jobs: Sequence[Job], rows: Sequence[dict], pictures: dict[st
         return None
     import wandb
 
-    sweep = next((j.sweep for j in jobs if j.sweep), out_dir.parent.name)
+    sweep = sweep_name(jobs, out_dir.parent.name)
     run = wandb.init(
         project=project,
         group=sweep,
