@@ -454,6 +454,32 @@ def test_cells_against_seeds_says_whether_the_grid_ranks_beyond_retraining(tmp_p
     assert cells_against_seeds(sweep("one_seed", {(64, 5): 0.02, (64, 1): 0.03}, [1.0])) is None
 
 
+def test_axis_trends_recover_a_known_slope_and_say_when_there_is_none(tmp_path):
+    """Least squares over every job: errors that halve per doubling of the embedding size and do not depend
+    on the MP steps give x0.5 and x1 (numpy's lstsq and scipy's t); the report says which axis has a trend."""
+    from gnsx.evaluation.report.analysis import axis_trends
+
+    folder, number = tmp_path / "trend", 0
+    for i, latent in enumerate((16, 32, 64, 128)):
+        for j, mp in enumerate((1, 3, 5, 10)):
+            # Halves per doubling of the width, with a +-5% checkerboard scatter that no axis explains.
+            mse = 0.1 * (16 / latent) * 10 ** (0.02 * (-1) ** (i + j))
+            _job(folder, number, _ok(latent, mp, mse=mse, ms=1.0 + number))
+            number += 1
+    jobs = load_sweep(folder)
+    trends = axis_trends(jobs)
+    assert trends["jobs"] == 16 and trends["df"] == 13
+    width, depth = trends["terms"]
+    assert width["axis"] == "latent_size" and width["factor"] == pytest.approx(0.5)
+    assert 0.45 < width["lo"] < width["factor"] < width["hi"] < 0.55 and width["p"] < 1e-6
+    assert depth["axis"] == "mp_steps" and depth["factor"] == pytest.approx(1.0) and depth["p"] > 0.9
+    markdown = build_report(folder, wandb_mode="disabled")["markdown"].read_text()
+    trend = markdown.split("## Trend along the axes")[1]
+    assert "doubling of the embedding size: x0.50" in trend and "the error falls" in trend
+    assert "doubling of the message-passing steps: x1.0" in trend and "no trend beyond the scatter" in trend
+    assert axis_trends(jobs[:3]) is None  # fewer jobs than the terms + 2
+
+
 def test_speed_vs_error_bars_are_95_percent_t_intervals(spread_sweep):
     from scipy.stats import t as student_t
 

@@ -57,6 +57,7 @@ from gnsx.evaluation.report.tables import (
     rules_line,
     seed_lines,
     table_rows,
+    trend_lines,
     write_csv,
     write_markdown,
 )
@@ -85,6 +86,7 @@ __all__ = [
     "reference_lines",
     "rules_line",
     "seed_lines",
+    "trend_lines",
     "split_seeds",
     "sweep_name",
     "plot_grid",
@@ -131,7 +133,8 @@ def build_report(
     rows = table_rows(jobs)
     outputs = dict(pictures)
     outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md", pick)
-    extra = [rules_line(jobs), "", *reference_lines(jobs, highlight), *seed_lines(every_seed)]
+    extra = [rules_line(jobs), "", *reference_lines(jobs, highlight), *seed_lines(every_seed),
+             *trend_lines(every_seed)]  # fmt: skip
     outputs["markdown"].write_text(outputs["markdown"].read_text().rstrip("\n") + "\n\n" + "\n".join(extra))
     outputs["csv"] = write_csv(rows, out / "results.csv")
     if project is None:

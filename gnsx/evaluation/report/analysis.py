@@ -1,7 +1,7 @@
 """What a sweep's numbers say: the speed/error Pareto front (:func:`pareto_front`), the best job and whether
 each other job can be told apart from it (:func:`best_job`, :func:`versus_best`), whether the cells differ
-beyond the seed spread at all (:func:`cells_against_seeds`), and the model a scene needs,
-the fastest within an error budget (:func:`pick_for_budget`, :func:`budget_lines`).
+beyond the seed spread at all (:func:`cells_against_seeds`) and along each axis (:func:`axis_trends`), and
+the model a scene needs, the fastest within an error budget (:func:`pick_for_budget`, :func:`budget_lines`).
 
 Each job is compared with the best one (lowest mean rollout MSE): paired over the same test trajectories
 (:func:`gnsx.evaluation.spread.compare`) when both have per-trajectory rows, otherwise by the overlap of mean
@@ -20,7 +20,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from gnsx.evaluation.report.jobs import Job, _number, speed_source, split_seeds
+from gnsx.evaluation.report.jobs import Job, _number, speed_source, split_seeds, swept_axes
 from gnsx.evaluation.spread import TIED, compare
 
 
@@ -276,3 +276,52 @@ def cells_against_seeds(jobs: Sequence[Job], key: str = "rollout_mse") -> dict |
     return {"cells": len(primary), "df_cells": len(primary) - 1, "df_seeds": df_seeds,
             "sd_cells": var_cells**0.5, "sd_seeds": var_seeds**0.5, "F": ratio,
             "p": float(stats.f.sf(ratio, len(primary) - 1, df_seeds))}  # fmt: skip
+
+
+#: How each swept axis enters :func:`axis_trends`: (transform, what one unit of it is).
+TREND_UNITS = {
+    "latent_size": (math.log2, "doubling of the embedding size"),
+    "mp_steps": (math.log2, "doubling of the message-passing steps"),
+    "radius": (lambda r: r / 0.01, "0.01 of radius (data units)"),
+}
+
+
+def axis_trends(jobs: Sequence[Job], key: str = "rollout_mse") -> dict | None:
+    """The error's trend along each swept axis over every seed of every cell: least squares of log10 of the
+    mean test ``key`` on the axes (log2 of embedding size and MP steps, the radius per 0.01), with t intervals.
+
+    Every trained job is one point, so the seeds of a cell count as its replicates and the residual scatter
+    holds both the seed spread and how far the cells stray from a straight trend. Complements
+    :func:`cells_against_seeds`: a grid whose cells cannot be ranked one by one may still show a trend along
+    an axis. Assumes the trend is log-linear on each axis and the axes add up (no interaction).
+
+    Returns:
+        None when there is no swept axis or too few jobs (fewer than the terms + 2); else ``{"jobs", "df",
+        "terms": [{"axis", "unit", "factor" (10**slope: the error's ratio per unit), "lo", "hi" (95%), "p"}]}``.
+    """
+    import numpy as np
+    from scipy import stats
+
+    axes = [k for k in swept_axes(jobs) if k in TREND_UNITS]
+    points = [
+        (j, _number(j.spread(key)[0])) for j in jobs if j.ok and all(getattr(j, k) is not None for k in axes)
+    ]
+    points = [(j, v) for j, v in points if v is not None and v > 0]
+    terms = len(axes) + 1
+    if not axes or len(points) < terms + 2:
+        return None
+    design = np.array([[1.0] + [TREND_UNITS[k][0](float(getattr(j, k))) for k in axes] for j, _ in points])
+    target = np.log10([v for _, v in points])
+    beta, *_ = np.linalg.lstsq(design, target, rcond=None)
+    df = len(points) - terms
+    residual = target - design @ beta
+    cov = float(residual @ residual) / df * np.linalg.inv(design.T @ design)
+    se = np.sqrt(np.diag(cov))
+    half = stats.t.ppf(0.975, df) * se
+    out = []
+    for i, axis in enumerate(axes, start=1):
+        t_value = beta[i] / se[i] if se[i] > 0 else math.inf
+        out.append({"axis": axis, "unit": TREND_UNITS[axis][1], "factor": float(10 ** beta[i]),
+                    "lo": float(10 ** (beta[i] - half[i])), "hi": float(10 ** (beta[i] + half[i])),
+                    "p": float(2 * stats.t.sf(abs(t_value), df))})  # fmt: skip
+    return {"jobs": len(points), "df": df, "terms": out}

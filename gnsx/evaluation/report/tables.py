@@ -15,6 +15,7 @@ from typing import Any
 from gnsx.evaluation.report.analysis import (
     BudgetPick,
     _ratio_text,
+    axis_trends,
     best_job,
     budget_lines,
     cells_against_seeds,
@@ -326,4 +327,26 @@ def seed_lines(jobs: Sequence[Job], key: str = "rollout_mse") -> list[str]:
                   f"seeds spread by sd {test['sd_cells']:.3f} decades, one cell's seeds by {test['sd_seeds']:.3f} "
                   f"(pooled, {test['df_seeds']} df); F({test['df_cells']}, {test['df_seeds']}) = "
                   f"{test['F']:.2f}, p = {test['p']:.2g}: {verdict}."]  # fmt: skip
+    return lines + [""]
+
+
+def trend_lines(jobs: Sequence[Job], key: str = "rollout_mse") -> list[str]:
+    """The error's trend along each swept axis over every seed of every cell (:func:`axis_trends`)."""
+    trends = axis_trends(jobs, key)
+    if trends is None:
+        return []
+    lines = ["## Trend along the axes", "",
+             f"Least squares of log10 {key} over every trained job ({trends['jobs']} jobs, every seed, "
+             f"{trends['df']} df; log-linear in each axis, no interaction): the error's ratio per",
+             ""]  # fmt: skip
+    for term in trends["terms"]:
+        if term["hi"] < 1:
+            verdict = "the error falls"
+        elif term["lo"] > 1:
+            verdict = "the error rises"
+        else:
+            verdict = "no trend beyond the scatter"
+        lines.append(f"- {term['unit']}: x{term['factor']:.2f} [{term['lo']:.2f}, {term['hi']:.2f}] (95%), "
+                     f"p = {term['p']:.2g}: {verdict}")  # fmt: skip
+    return lines + [""]
     return lines + [""]
