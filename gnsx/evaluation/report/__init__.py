@@ -129,7 +129,7 @@ def build_report(
         pictures["grid"] = plot_grid(jobs, out / "grid.png", highlight, pick.pick if pick else None)
     pictures["speed_vs_error"] = plot_speed_error(jobs, out / "speed_vs_error.png", highlight, pick, repeats)
     if "radius" in keys:
-        pictures["radius"] = plot_radius(jobs, out / "radius.png")
+        pictures["radius"] = plot_radius(jobs, out / "radius.png", repeats)
     rows = table_rows(jobs)
     outputs = dict(pictures)
     outputs["markdown"] = write_markdown(jobs, rows, pictures, sweep_dir, out / "report.md", pick)

@@ -260,37 +260,53 @@ def _plain_log_ticks(axis) -> None:
     axis.set_minor_formatter(NullFormatter())
 
 
-def plot_radius(jobs: Sequence[Job], path: Path) -> Path:
-    """Rollout (and one-step) MSE, and ms/frame, against the connection radius; failed radii marked."""
+def plot_radius(jobs: Sequence[Job], path: Path, repeats: Sequence[Job] = ()) -> Path:
+    """Three panels against the connection radius: the rollout MSE (95% interval bars over test
+    trajectories, the other seeds of a radius as grey rings, the mean over seeds joined, the physics-free
+    baseline dashed), the one-step MSE, and ms/frame; failed radii marked. Rollout and one-step errors differ
+    by ~10^6, so each gets its own axis."""
     import matplotlib.pyplot as plt
 
     source = speed_source(jobs)
     ok = sorted((j for j in jobs if j.ok and j.radius is not None), key=lambda j: j.radius)
-    fig, (err_ax, ms_ax) = plt.subplots(1, 2, figsize=(10, 4))
-    radius = [j.radius for j in ok]
-    for key, style in (("rollout_mse", "-o"), ("onestep_mse", "--s")):
-        values = [_number(j.test.get(key)) for j in ok]
-        if any(v is not None for v in values):
-            err_ax.plot(
-                radius, [np.nan if v is None else v for v in values], style, label=key.replace("_", " ")
-            )
-    ms = [j.ms_per_frame(source) for j in ok]
-    ms_ax.plot(radius, [np.nan if v is None else v for v in ms], "-o", color="tab:orange")
+    seeds = [j for j in repeats if j.ok and j.radius is not None]
+    fig, (err_ax, step_ax, ms_ax) = plt.subplots(1, 3, figsize=(14, 4.2))
+    radius = np.array([j.radius for j in ok])
+    rollout = np.array([_number(j.rollout_mse) or np.nan for j in ok])
+    if len(ok):
+        half = np.array([_interval_half_width(j) for j in ok])
+        err_ax.errorbar(radius, rollout, yerr=[np.minimum(half, 0.99 * rollout), half], fmt="o", color="tab:blue",
+                        ecolor="0.4", capsize=3, label="lowest seed (95% interval over trajectories)")  # fmt: skip
+        if seeds:
+            err_ax.scatter([j.radius for j in seeds], [_number(j.rollout_mse) or np.nan for j in seeds], s=40,
+                           facecolors="none", edgecolors="tab:gray", linewidths=1.5, label="another seed")  # fmt: skip
+            means = [np.nanmean([_number(x.rollout_mse) or np.nan for x in [j, *seeds] if x.radius == j.radius])
+                     for j in ok]  # fmt: skip
+            err_ax.plot(radius, means, "-", color="tab:blue", lw=1, label="mean over seeds")
+        baseline = [_number(j.test.get("baseline_mse")) for j in ok]
+        if any(b is not None for b in baseline):
+            err_ax.plot(radius, [np.nan if b is None else b for b in baseline], "--", color="tab:red", lw=1,
+                        label="physics-free baseline")  # fmt: skip
+        step_ax.plot(
+            radius, [_number(j.test.get("onestep_mse")) or np.nan for j in ok], "-s", color="tab:green"
+        )
+        ms_ax.plot(radius, [j.ms_per_frame(source) or np.nan for j in ok], "-o", color="tab:orange")
     for job in jobs:
         if not job.ok and job.radius is not None:
-            for ax in (err_ax, ms_ax):
+            for ax in (err_ax, step_ax, ms_ax):
                 ax.axvline(job.radius, color="darkred", ls=":", lw=1)
                 ax.text(job.radius, 0.98, " failed", color="darkred", fontsize=7, va="top",
                         transform=ax.get_xaxis_transform())  # fmt: skip
     err_ax.set_yscale("log")
-    err_ax.set_xlabel("connection radius (data units)")
-    err_ax.set_ylabel("test MSE (data units$^2$)")
+    err_ax.set_ylabel("test rollout MSE (data units$^2$)")
     if err_ax.get_legend_handles_labels()[0]:
-        err_ax.legend(fontsize=8)
-    ms_ax.set_xlabel("connection radius (data units)")
+        err_ax.legend(fontsize=7)
+    step_ax.set_ylabel("test one-step MSE (data units$^2$)")
     what = "benchmark at WaterRamps size" if source == "bench" else "test rollout"
-    ms_ax.set_ylabel(f"inference ms/frame ({what})")
-    for ax in (err_ax, ms_ax):
+    ms_ax.set_ylabel("inference ms/frame")
+    ms_ax.set_title(what, fontsize=9)
+    for ax in (err_ax, step_ax, ms_ax):
+        ax.set_xlabel("connection radius (data units)")
         ax.grid(True, alpha=0.3)
     fig.suptitle(f"{sweep_name(jobs)}: error and speed against radius")
     fig.tight_layout()
