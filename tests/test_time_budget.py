@@ -59,14 +59,19 @@ class _SlowModule(L.LightningModule):
         return torch.utils.data.DataLoader(data, batch_size=1)
 
 
+def _trainer(max_steps: int, *callbacks) -> L.Trainer:
+    """A bare CPU Trainer for these callbacks: no logger, checkpoints, progress bar or validation batches."""
+    return L.Trainer(
+        max_steps=max_steps, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, callbacks=list(callbacks), limit_val_batches=0,
+    )  # fmt: skip
+
+
 def test_time_budget_shrinks_the_run_and_completes_the_schedule(caplog):
     """~100 steps/s and a 1.5 s budget: far fewer than 10,000 steps fit, and the LR still reaches its end."""
     module = _SlowModule(step_s=0.01, max_steps=10_000)
     budget = TimeBudget(1.5, calibration_steps=20, safety=0.9)
-    trainer = L.Trainer(
-        max_steps=10_000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, callbacks=[budget], limit_val_batches=0,
-    )  # fmt: skip
+    trainer = _trainer(10_000, budget)
     with caplog.at_level("WARNING", logger="gnsx"):
         trainer.fit(module)
     assert budget.fitted is not None and 20 < budget.fitted < 300
@@ -83,10 +88,7 @@ def test_time_budget_shrinks_the_run_and_completes_the_schedule(caplog):
 def test_time_budget_leaves_a_run_that_fits_alone():
     module = _SlowModule(step_s=0.0, max_steps=30)
     budget = TimeBudget(60.0, calibration_steps=10)
-    trainer = L.Trainer(
-        max_steps=30, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, callbacks=[budget], limit_val_batches=0,
-    )  # fmt: skip
+    trainer = _trainer(30, budget)
     trainer.fit(module)
     assert budget.fitted is None and trainer.global_step == 30 and module.schedule_scale == 1.0
 
@@ -111,10 +113,7 @@ def test_a_training_time_budget_leaves_validation_out_and_stops_the_fit():
     module = _SlowModule(step_s=0.01, max_steps=10_000)
     budget = TimeBudget(1.0, calibration_steps=20, safety=1.0, count_validation=False)
     validator = _Validator(budget, every=20, pause_s=0.2)
-    trainer = L.Trainer(
-        max_steps=10_000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, callbacks=[budget, validator], limit_val_batches=0,
-    )  # fmt: skip
+    trainer = _trainer(10_000, budget, validator)
     start = time.perf_counter()
     trainer.fit(module)
     wall = time.perf_counter() - start
@@ -148,10 +147,7 @@ def test_a_training_time_budget_grows_the_run_again_when_the_rate_recovers(caplo
     module = _SpeedsUp(slow_s=0.02, fast_s=0.005, slow_steps=40, max_steps=100_000)
     budget = TimeBudget(2.0, calibration_steps=20, safety=0.95, count_validation=False)
     budget.replan_every = 25
-    trainer = L.Trainer(
-        max_steps=100_000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, callbacks=[budget], limit_val_batches=0,
-    )  # fmt: skip
+    trainer = _trainer(100_000, budget)
     with caplog.at_level("WARNING", logger="gnsx"):
         trainer.fit(module)
     first = 20 + int(2.0 * 0.95 / 0.02)  # what the calibration alone would have fitted: ~115 steps

@@ -17,6 +17,7 @@ leads ``report.md`` and is framed in blue in the grid and starred in the scatter
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -261,16 +262,13 @@ def cells_against_seeds(jobs: Sequence[Job], key: str = "rollout_mse") -> dict |
     primary = [math.log10(v) for v in primary if v is not None and v > 0]
     if len(primary) < 2 or not groups:
         return None
-    df_seeds, within = 0, 0.0
-    for group in groups:
-        logs = [math.log10(v) for v in group["values"] if v > 0]
-        mean = sum(logs) / len(logs)
-        within += sum((v - mean) ** 2 for v in logs)
-        df_seeds += len(logs) - 1
+    logs = [[math.log10(v) for v in group["values"] if v > 0] for group in groups]
+    logs = [values for values in logs if len(values) > 1]
+    df_seeds = sum(len(values) - 1 for values in logs)
+    within = sum((len(values) - 1) * statistics.variance(values) for values in logs)  # pooled sum of squares
     if df_seeds < 1 or within <= 0:
         return None
-    mean = sum(primary) / len(primary)
-    var_cells = sum((v - mean) ** 2 for v in primary) / (len(primary) - 1)
+    var_cells = statistics.variance(primary)
     var_seeds = within / df_seeds
     ratio = var_cells / var_seeds
     return {"cells": len(primary), "df_cells": len(primary) - 1, "df_seeds": df_seeds,

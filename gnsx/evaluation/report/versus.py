@@ -184,6 +184,13 @@ def median_trajectory(rows_by_model: Sequence[Sequence[dict]], key: str = "rollo
     return scores[(len(scores) - 1) // 2][1]
 
 
+def strip_checkpoints(runs: dict[str, dict], checkpoints: dict[str, Path] | None = None) -> dict[str, Path]:
+    """The weights figure 8 draws for each model: ``checkpoints[name]`` when given, else the run's
+    ``checkpoints/last.ckpt`` (its final weights)."""
+    given = checkpoints or {}
+    return {name: given.get(name) or run["dir"] / "checkpoints" / "last.ckpt" for name, run in runs.items()}
+
+
 def render_strip(
     runs: dict[str, dict],
     data_root: Path,
@@ -191,8 +198,8 @@ def render_strip(
     path: Path,
     checkpoints: dict[str, Path] | None = None,
 ) -> Path:
-    """Figure 8: ground truth and each model's raw rollout every :data:`STRIP_EVERY` frames, from each run's
-    ``checkpoints/last.ckpt`` (its final weights) unless ``checkpoints`` names another file for a model."""
+    """Figure 8: ground truth and each model's raw rollout every :data:`STRIP_EVERY` frames, from
+    :func:`strip_checkpoints` (each run's final weights unless ``checkpoints`` names another file)."""
     import torch
 
     from gnsx.data.store import load_metadata, open_split
@@ -205,8 +212,8 @@ def render_strip(
     true = np.array(traj.position, dtype=np.float32)  # [T, N, D]
     types = np.array(traj.particle_type, dtype=np.int64)
     rollouts, titles = [true], ["truth"]
-    for name, run in runs.items():
-        simulator = load_simulator((checkpoints or {}).get(name) or run["dir"] / "checkpoints" / "last.ckpt")
+    for name, weights in strip_checkpoints(runs, checkpoints).items():
+        simulator = load_simulator(weights)
         frames = simulator.input_frames
         position = torch.from_numpy(true)
         with torch.inference_mode():
@@ -276,9 +283,7 @@ def build(
         "sweep": str(sweep_dir),
         "models": names,
         "trajectory": trajectory,
-        "strip_checkpoints": {
-            n: str((checkpoints or {}).get(n) or runs[n]["dir"] / "checkpoints" / "last.ckpt") for n in names
-        },  # fmt: skip
+        "strip_checkpoints": {n: str(path) for n, path in strip_checkpoints(runs, checkpoints).items()},
         "paired": paired,
         "crossings": cross,
         "runs": {
