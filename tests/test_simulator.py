@@ -239,8 +239,45 @@ def test_pushforward_starts_the_loss_step_where_the_model_got_to(name):
     simulator.zero_grad()
     predicted, target = pair(3e-4)
     assert predicted.requires_grad and not target.requires_grad
-    with pytest.raises(ValueError, match="pushforward_steps 1 needs"):
+    with pytest.raises(ValueError, match="pushforward_steps 1 and unroll_steps 1 needs"):
         simulator.noisy_training_pair(window, next_position, types, 0.0, pushforward_steps=1)
+
+
+@pytest.mark.parametrize("name", CONFIGS)
+def test_unrolled_loss_steps_follow_the_models_own_rollout_with_gradient(name):
+    simulator = make_simulator(CONFIGS[name])
+    steps = 3
+    positions, types = scene(frames=simulator.input_frames + steps)
+    window, next_position = positions[:, :-1], positions[:, -1]
+    predicted, target = simulator.noisy_training_rollout(
+        window, next_position, types, 0.0, unroll_steps=steps
+    )
+    assert predicted.shape == target.shape == (steps, *next_position.shape)
+    # By hand: each step from the model's own positions, scored against the true frame after it, the
+    # deviation treated as the noise (its velocity part undone by the target).
+    current = window[:, : simulator.input_frames]
+    for step in range(steps):
+        truth_now, truth_next = (
+            positions[:, simulator.input_frames - 1 + step],
+            positions[:, simulator.input_frames + step],
+        )
+        assert torch.allclose(predicted[step], simulator(current, types), atol=1e-5)
+        expected = simulator.normalized_target(truth_next + current[:, -1] - truth_now, current)
+        assert torch.allclose(target[step], expected, atol=2e-3)
+        current = torch.cat([current[:, 1:], simulator.predict_positions(current, types).unsqueeze(1)], dim=1)
+    # The first step is the single step of before.
+    single = simulator.noisy_training_pair(
+        window[:, : simulator.input_frames], positions[:, simulator.input_frames], types, 0.0
+    )
+    assert torch.allclose(predicted[0], single[0]) and torch.allclose(target[0], single[1])
+    # The gradient of a later step reaches the weights through the earlier steps' predictions too: the last
+    # step's loss depends on the first step's output.
+    first_output = simulator.network.parameters().__next__()
+    loss_last = ((predicted[-1] - target[-1]) ** 2).mean()
+    (grad,) = torch.autograd.grad(loss_last, first_output, retain_graph=True)
+    assert grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="unroll_steps 3 needs"):
+        simulator.noisy_training_rollout(window[:, :-1], next_position, types, 0.0, unroll_steps=steps)
 
 
 def test_batched_forward_equals_single_forwards():

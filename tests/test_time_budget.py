@@ -94,7 +94,7 @@ def test_time_budget_leaves_a_run_that_fits_alone():
 
 
 class _Validator(L.Callback):
-    """Pauses the clock for ``pause_s`` every ``every`` steps, as WallClockValidation does while it rolls out."""
+    """Pauses the clock for ``pause_s`` every ``every`` steps, as CurveValidation does while it rolls out."""
 
     def __init__(self, clock, every: int, pause_s: float):
         self.clock, self.every, self.pause_s, self.pauses = clock, every, pause_s, 0

@@ -33,8 +33,8 @@ class FrameDataset(Dataset):
         self.reader = reader
         self.history = history
         self.lead = lead
-        # The model's H + 1 input frames, ``lead`` frames it predicts itself before the loss step (the
-        # pushforward trick, LearnedSimulator.noisy_training_pair), and the target.
+        # The model's H + 1 input frames, ``lead`` frames it predicts itself before the last loss step (the
+        # pushforward trick and the unrolled loss, LearnedSimulator.noisy_training_rollout), and the target.
         frames = history + 1 + lead
         counts = np.array([max(reader.num_frames(i) - frames, 0) for i in range(len(reader))], np.int64)
         if counts.sum() == 0:
@@ -95,8 +95,11 @@ class ParticleDataModule(L.LightningDataModule):
         num_workers: DataLoader worker processes for training frames.
         val_max_trajectories: validation rollouts per validation run (None: all).
         test_max_trajectories: test rollouts (None: all).
-        pushforward_steps: frames a training sample holds beyond the model's inputs and target, for the
-            pushforward trick (``train.pushforward_steps``; 0: DeepMind's single step).
+        pushforward_steps: model steps without gradient before the loss (the pushforward trick,
+            ``train.pushforward_steps``; 0: DeepMind's single step).
+        unroll_steps: model steps the loss runs over, with the gradient through them (``train.unroll_steps``;
+            1: DeepMind's single step). A training sample holds ``pushforward_steps + unroll_steps - 1`` frames
+            beyond the model's inputs and target.
     """
 
     def __init__(
@@ -108,8 +111,11 @@ class ParticleDataModule(L.LightningDataModule):
         val_max_trajectories: int | None = None,
         test_max_trajectories: int | None = None,
         pushforward_steps: int = 0,
+        unroll_steps: int = 1,
     ):
         super().__init__()
+        if unroll_steps < 1:
+            raise ValueError(f"ParticleDataModule: unroll_steps must be >= 1, got {unroll_steps}")
         self.root = Path(root)
         self.history = history
         self.batch_size = batch_size
@@ -117,6 +123,7 @@ class ParticleDataModule(L.LightningDataModule):
         self.val_max_trajectories = val_max_trajectories
         self.test_max_trajectories = test_max_trajectories
         self.pushforward_steps = pushforward_steps
+        self.unroll_steps = unroll_steps
         self._metadata: Metadata | None = None
         self._checked: dict[str, SplitReader] = {}
 
@@ -145,7 +152,9 @@ class ParticleDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit"):
-            self.train_set = FrameDataset(self._reader("train"), self.history, self.pushforward_steps)
+            self.train_set = FrameDataset(
+                self._reader("train"), self.history, self.pushforward_steps + self.unroll_steps - 1
+            )
             self.val_set = TrajectoryDataset(self._reader("valid"), self.val_max_trajectories)
         if stage in (None, "test"):
             self.test_set = TrajectoryDataset(self._reader("test"), self.test_max_trajectories)

@@ -1,5 +1,5 @@
 """The ``curve.jsonl`` of a run validated at fixed intervals of training time
-(:class:`gnsx.training.curves.WallClockValidation`): writing a row, reading the curves back.
+(:class:`gnsx.training.curves.CurveValidation`): writing a row, reading the curves back.
 
 ``curve.jsonl`` holds one JSON object per line (appended; a resumed run continues it, and
 :func:`read_curve` keeps the last row of each kind and step):

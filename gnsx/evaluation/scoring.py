@@ -670,7 +670,8 @@ def evaluate_trajectory(
         ``rollout_mse``: MSE per coordinate over dynamic particles and all predicted frames, the rollout
         starting from the first ``history + 1`` ground-truth frames; ``onestep_mse``: the same for single
         steps from ground-truth inputs on every ``onestep_stride``-th frame
-        (:func:`onestep_mse`).
+        (:func:`onestep_mse`); ``area_ratio_final``: the area the water covers at the last frame, predicted
+        over true (:func:`gnsx.evaluation.metrics.area_ratio`; below 1 the rollout lost volume).
     """
     frames = simulator.input_frames
     position = position.to(simulator.acc_std.device)
@@ -678,7 +679,12 @@ def evaluate_trajectory(
     dynamic = particle_type != KINEMATIC_PARTICLE_ID
     initial = position[:frames].transpose(0, 1)
     predicted = rollout(simulator, initial, particle_type, position.shape[0] - frames)
+    water = dynamic.cpu().numpy()
+    true_final, true_first = position[-1].cpu().numpy()[water], position[0].cpu().numpy()[water]
     return {
         "rollout_mse": position_mse(predicted, position[frames:], dynamic),
         "onestep_mse": onestep_mse(simulator, position, particle_type, stride=onestep_stride),
+        "area_ratio_final": area_ratio(
+            predicted[-1].cpu().numpy()[water], true_final, particle_spacing(true_first)
+        ),
     }

@@ -9,8 +9,8 @@ from gnsx.model.simulator import LearnedSimulator
 
 #: Keys of a ``conf/model/*.yaml`` that are not :class:`LearnedSimulator` arguments: the config's name, the
 #: training noise and its decay, DeepMind's noise-widened normalisation switch, and the radius (a data fact
-#: that ``model.radius`` may override).
-MODEL_CONFIG_EXTRAS = ("name", "noise_std", "noise_decay", "widen_stats_by_noise", "radius")
+#: that ``model.radius`` may override, or ``model.radius_scale`` scale).
+MODEL_CONFIG_EXTRAS = ("name", "noise_std", "noise_decay", "widen_stats_by_noise", "radius", "radius_scale")
 
 #: The two models of the paper's comparison and gnsx's default (``simplified_pairwise``: the simplified model
 #: with the momentum-conserving decoder and the wall feature clipped at 10 R), as LearnedSimulator arguments

@@ -71,6 +71,7 @@ def check_train_config(cfg: DictConfig) -> None:
         check_int(_get(cfg, f"train.{key}"), f"train.{key}", minimum=0)
     check_int(_get(cfg, "train.max_skipped_steps", 0), "train.max_skipped_steps", minimum=0)
     check_int(_get(cfg, "train.pushforward_steps", 0), "train.pushforward_steps", minimum=0)
+    check_int(_get(cfg, "train.unroll_steps", 1), "train.unroll_steps", minimum=1)
     check_int(_get(cfg, "train.lr_warmup_steps", 0), "train.lr_warmup_steps", minimum=0)
     check_int(_get(cfg, "train.val_max_trajectories"), "train.val_max_trajectories", 1, allow_none=True)
     for key in ("lr_init", "lr_final", "huber_delta"):
@@ -97,6 +98,8 @@ def check_train_config(cfg: DictConfig) -> None:
         raise ConfigError(f"train.noise_correction={correction}", "must be in [0, 1]")
     for key in ("gradient_clip_val", "checkpoint_every_minutes", "val_every_minutes"):
         check_number(_get(cfg, f"train.{key}"), f"train.{key}", positive=True, allow_none=True)
+    if _get(cfg, "train.curve_every_n_steps") is not None:
+        check_int(_get(cfg, "train.curve_every_n_steps"), "train.curve_every_n_steps", minimum=1)
     from gnsx.training.system import LOSSES
 
     if _get(cfg, "train.loss") not in LOSSES:
@@ -120,8 +123,9 @@ def check_train_config(cfg: DictConfig) -> None:
     if not counts and (max_time is None or not _get(cfg, "train.fit_to_max_time", False)):
         raise ConfigError("train.budget_counts_validation=false",
                           "needs train.max_time and train.fit_to_max_time=true (the budget it changes)")  # fmt: skip
-    if _get(cfg, "train.val_every_minutes") is not None and "ddp" in str(_get(cfg, "trainer.strategy", "")):
-        raise ConfigError("train.val_every_minutes", "validates in one process: not with a DDP strategy")
+    for key in ("val_every_minutes", "curve_every_n_steps"):
+        if _get(cfg, f"train.{key}") is not None and "ddp" in str(_get(cfg, "trainer.strategy", "")):
+            raise ConfigError(f"train.{key}", "validates in one process: not with a DDP strategy")
     precision = str(_get(cfg, "trainer.precision", "32-true"))
     if precision not in TRAINER_PRECISIONS:
         raise ConfigError(

@@ -1,11 +1,13 @@
-"""Learning curves against wall-clock training time: validation rollouts at fixed intervals of training time,
-and the training loss, written to ``curve.jsonl`` for figures 6-7 of an equal-budget comparison.
+"""Learning curves: validation rollouts at fixed intervals of training time or of steps, and the training loss,
+written to ``curve.jsonl`` for figures 6-7 of an equal-budget comparison and for the learning study.
 
-Lightning validates every N steps or epochs; two models of different speed then validate at different times,
-and a slow model's long validation rollouts eat its training time. :class:`WallClockValidation` instead rolls
-the model out on the validation trajectories every ``every_s`` seconds of *training* time (the clock is paused
-while it validates, :meth:`gnsx.training.time_budget.TrainingClock.paused`), so both models of a comparison are
-measured at the same points of their budget and validation costs neither of them any training.
+Lightning validates every N steps or epochs, and its validation counts against a time budget. :class:`CurveValidation`
+rolls the model out on the validation trajectories every ``every_s`` seconds of *training* time, or every
+``every_n_steps`` optimizer steps, with the clock paused while it validates
+(:meth:`gnsx.training.time_budget.TrainingClock.paused`): models of different speed are measured at the same
+points of their budget, and validation costs none of them any training. Steps are the interval of the
+learning study (docs/learning), whose arms have step budgets fixed in advance so that the machine's load
+cannot change what an arm trains.
 
 The file's rows are described in :mod:`gnsx.evaluation.curve_file`.
 """
@@ -27,12 +29,15 @@ from gnsx.training.time_budget import TrainingClock
 log = logging.getLogger("gnsx")
 
 
-class WallClockValidation(Callback):
-    """Validation rollouts every ``every_s`` seconds of training time, and the loss curve, into ``path``.
+class CurveValidation(Callback):
+    """Validation rollouts every ``every_s`` seconds of training time or every ``every_n_steps`` steps, and the
+    loss curve, into ``path``.
 
     Args:
         clock: the run's training clock (paused while this validates).
-        every_s: training seconds between validations; the run's end adds a last one.
+        every_s: training seconds between validations (None: ``every_n_steps`` decides); the run's end adds a
+            last one.
+        every_n_steps: optimizer steps between validations, instead of ``every_s``.
         path: the ``curve.jsonl`` to append to.
         loss_every_n_steps: steps per ``train`` row.
         onestep_stride: as :func:`gnsx.evaluation.scoring.evaluate_trajectory`.
@@ -44,15 +49,21 @@ class WallClockValidation(Callback):
     def __init__(
         self,
         clock: TrainingClock,
-        every_s: float,
+        every_s: float | None,
         path: str | Path,
         loss_every_n_steps: int = 50,
         onestep_stride: int = 10,
+        every_n_steps: int | None = None,
     ):
-        if every_s <= 0:
-            raise ValueError(f"WallClockValidation: every_s must be positive, got {every_s}")
+        if (every_s is None) == (every_n_steps is None):
+            raise ValueError("CurveValidation: give one of every_s and every_n_steps")
+        if every_s is not None and every_s <= 0:
+            raise ValueError(f"CurveValidation: every_s must be positive, got {every_s}")
+        if every_n_steps is not None and every_n_steps < 1:
+            raise ValueError(f"CurveValidation: every_n_steps must be >= 1, got {every_n_steps}")
         self.clock = clock
-        self.every_s = float(every_s)
+        self.every_n_steps = None if every_n_steps is None else int(every_n_steps)
+        self.every_s = float("inf") if every_s is None else float(every_s)
         self.path = Path(path)
         self.loss_every_n_steps = int(loss_every_n_steps)
         self.onestep_stride = int(onestep_stride)
@@ -97,7 +108,10 @@ class WallClockValidation(Callback):
             self._write({"kind": "train", **self._position(trainer, pl_module),
                          "loss": float(torch.stack(self._losses).float().mean())})  # fmt: skip
             self._losses = []
-        if self.clock.total_training_s() >= self.next_s:
+        if self.every_n_steps is not None:
+            if step % self.every_n_steps == 0 and step != self.last_validated_step:
+                self.validate(trainer, pl_module)
+        elif self.clock.total_training_s() >= self.next_s:
             self.validate(trainer, pl_module)
             while self.next_s <= self.clock.total_training_s():
                 self.next_s += self.every_s
@@ -126,12 +140,16 @@ class WallClockValidation(Callback):
         rollout = [m["rollout_mse"] for m in metrics]
         row["rollout_mse"], row["rollout_mse_se"] = mean_se(rollout)
         row["onestep_mse"] = float(np.mean([m["onestep_mse"] for m in metrics]))
+        row["area_ratio_final"], row["area_ratio_final_se"] = mean_se(
+            [m["area_ratio_final"] for m in metrics]
+        )
         row["validation_s"] = paused.seconds
         row["trajectories"] = len(metrics)
         self._write(row)
         for logger in trainer.loggers:
             logger.log_metrics({f"val_clock/{k}": float(row[k]) for k in
-                                ("rollout_mse", "rollout_mse_se", "onestep_mse", "time_s", "samples")},
+                                ("rollout_mse", "rollout_mse_se", "onestep_mse", "area_ratio_final", "time_s",
+                                                      "samples")},
                                step=row["step"])  # fmt: skip
         log.info("Validation at %.0f s of training (step %d): rollout MSE %.3g +- %.2g over %d trajectories "
                  "(%.0f s, not counted)", row["time_s"], row["step"], row["rollout_mse"],

@@ -154,6 +154,7 @@ def build_system(cfg: DictConfig, datamodule: ParticleDataModule) -> GNSSystem:
         noise_decay=noise["noise_decay"],
         noise_correction=float(OmegaConf.select(train, "noise_correction", default=0.0)),
         pushforward_steps=int(OmegaConf.select(train, "pushforward_steps", default=0)),
+        unroll_steps=int(OmegaConf.select(train, "unroll_steps", default=1)),
         mirror=bool(OmegaConf.select(train, "mirror", default=False)),
         lr_init=float(train.lr_init),
         lr_final=float(train.lr_final),
@@ -215,11 +216,33 @@ DATA_RADIUS = "the dataset's default_connectivity_radius"
 
 
 def connectivity_radius(cfg: DictConfig, meta: Metadata) -> tuple[float, str]:
-    """The connection radius the model's graph uses and where it comes from (``model.radius``, or the
-    dataset's ``default_connectivity_radius`` when that is null)."""
+    """The connection radius the model's graph uses and where it comes from (:func:`radius_source`).
+
+    ``model.radius`` when set; else ``model.radius_scale`` (default 1) times the dataset's
+    ``default_connectivity_radius``. Why a scale: a radius is a data fact (in particle spacings), so a model
+    whose radius differs from DeepMind's says so relative to the data. The simplified model's 0.020 / 0.015
+    is the paper's 0.020 at WaterRamps, whose default radius is 0.015 (its sections 6.2.1 and 9.0.1), and so
+    0.0467 on the small preset (default 0.035).
+    """
     if cfg.model.radius is not None:
-        return float(cfg.model.radius), "model.radius"
-    return float(meta.default_connectivity_radius), DATA_RADIUS
+        return float(cfg.model.radius), radius_source(cfg)
+    return radius_scale(cfg) * float(meta.default_connectivity_radius), radius_source(cfg)
+
+
+def radius_scale(cfg: DictConfig) -> float:
+    """``model.radius_scale`` (1 when absent or null)."""
+    scale = float(OmegaConf.select(cfg.model, "radius_scale", default=None) or 1.0)
+    if not scale > 0:
+        raise ConfigError(f"model.radius_scale={scale}", "must be > 0")
+    return scale
+
+
+def radius_source(cfg: DictConfig) -> str:
+    """Where the model's radius comes from, as results.json's ``model_config.radius_source`` records it."""
+    if cfg.model.radius is not None:
+        return "model.radius"
+    scale = radius_scale(cfg)
+    return DATA_RADIUS if scale == 1.0 else f"model.radius_scale={scale:g} x {DATA_RADIUS}"
 
 
 def _short(values: list[float]) -> str:
@@ -332,9 +355,10 @@ def build_trainer(cfg: DictConfig, run_dir: Path, loggers: list, callbacks: list
     if str(requested) == "auto":
         log.info("Precision: %s (trainer.precision=auto, gnsx.training.precision)", trainer_args["precision"])
     # Training time only (validation excluded): the TimeBudget stops the fit, as Lightning's Timer counts
-    # validation. Validation at intervals of training time replaces Lightning's loop (WallClockValidation).
+    # validation. Validation at intervals of training time or steps replaces Lightning's loop (CurveValidation).
     counts_validation = bool(OmegaConf.select(train, "budget_counts_validation", default=True))
-    if OmegaConf.select(train, "val_every_minutes", default=None) is not None:
+    if any(OmegaConf.select(train, key, default=None) is not None
+           for key in ("val_every_minutes", "curve_every_n_steps")):  # fmt: skip
         trainer_args["limit_val_batches"] = 0
     return L.Trainer(
         **trainer_args,
@@ -407,7 +431,7 @@ def model_summary(cfg: DictConfig, system: GNSSystem) -> dict[str, Any]:
     arch["wall_clip"] = list(arch["wall_clip"])
     noise = training_noise(cfg)
     return {"name": str(cfg.model.name), **arch, "radius": float(system.hparams.radius),
-            "radius_source": "model.radius" if cfg.model.radius is not None else DATA_RADIUS,
+            "radius_source": radius_source(cfg),
             "noise_std": float(system.hparams.noise_std),
             "noise_std_source": noise["noise_std_source"], "noise_decay": float(system.hparams.noise_decay),
             "noise_decay_source": noise["noise_decay_source"],
@@ -579,11 +603,12 @@ def check_inputs(cfg: DictConfig) -> ParticleDataModule:
         val_max_trajectories=cfg.train.val_max_trajectories,
         test_max_trajectories=cfg.evaluate.max_trajectories,
         pushforward_steps=int(OmegaConf.select(cfg.train, "pushforward_steps", default=0)),
+        unroll_steps=int(OmegaConf.select(cfg.train, "unroll_steps", default=1)),
     )
     datamodule.check(["train", "valid", *(["test"] if cfg.evaluate.enabled else [])])
     if resume is not None or init is not None:
         meta = datamodule.metadata
-        radius = cfg.model.radius if cfg.model.radius is not None else meta.default_connectivity_radius
+        radius, _ = connectivity_radius(cfg, meta)
         model = model_arguments(cfg.model, meta)
         for path, name in ((resume, "train.ckpt_path"), (init, "train.init_weights")):
             if path is not None:
@@ -657,11 +682,15 @@ def _train_and_evaluate(
     clock = training_clock(cfg)
     callbacks = [clock]
     val_every_minutes = OmegaConf.select(cfg.train, "val_every_minutes", default=None)
-    if val_every_minutes is not None:
-        from gnsx.training.curves import WallClockValidation
+    curve_every_n_steps = OmegaConf.select(cfg.train, "curve_every_n_steps", default=None)
+    if val_every_minutes is not None or curve_every_n_steps is not None:
+        from gnsx.training.curves import CurveValidation
 
-        callbacks.append(WallClockValidation(clock, 60.0 * float(val_every_minutes), run_dir / "curve.jsonl",
-                                             loss_every_n_steps=int(cfg.train.log_every_n_steps)))  # fmt: skip
+        every_s = None if val_every_minutes is None else 60.0 * float(val_every_minutes)
+        every_n_steps = None if every_s is not None else int(curve_every_n_steps)
+        record["curve_every"] = {"minutes": val_every_minutes, "steps": every_n_steps}
+        callbacks.append(CurveValidation(clock, every_s, run_dir / "curve.jsonl", every_n_steps=every_n_steps,
+                                         loss_every_n_steps=int(cfg.train.log_every_n_steps)))  # fmt: skip
         record["curve"] = str(run_dir / "curve.jsonl")
 
     def beat(fields: dict) -> None:
@@ -681,6 +710,7 @@ def _train_and_evaluate(
     finally:
         record.update(clock.summary())
         record.update(schedule_summary(cfg, trainer, clock, system))
+    record["evaluated"] = bool(cfg.evaluate.enabled)
     if not (cfg.evaluate.enabled and trainer.is_global_zero):
         return None
     # The benchmark runs where the model trained (Lightning moves it back to the CPU after fit).
@@ -793,14 +823,19 @@ def run_training(cfg: DictConfig) -> float | None:
 
 
 def finished_result(results_path: Path) -> float | None:
-    """The test rollout MSE of a job that finished in this folder before (``status`` ok and a finite test
-    rollout MSE in its results.json), or None: what a resumable sweep (``sweep.resume``) skips."""
+    """The test rollout MSE of a job that finished in this folder before, or None: what a resumable sweep
+    (``sweep.resume``) skips. Finished: ``status`` ok and a finite test rollout MSE in its results.json, or
+    no test score at all when the job ran without its test evaluation (``evaluate.enabled=false``, the
+    learning study's arms: their scores are the validation curve's); then NaN."""
     try:
         results = json.loads(results_path.read_text())
-        value = float(results["test"]["rollout_mse"])
-    except (OSError, ValueError, KeyError, TypeError):
+        value = (results.get("test") or {}).get("rollout_mse")
+        value = float("nan") if value is None and results.get("evaluated") is False else float(value)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return value if results.get("status") == "ok" and math.isfinite(value) else None
+    if results.get("status") != "ok":
+        return None
+    return value if math.isfinite(value) or results.get("evaluated") is False else None
 
 
 def _run_dir_of(ckpt_path: str | None) -> Path | None:

@@ -71,6 +71,9 @@ class GNSSystem(L.LightningModule):
             target is the true next position; :meth:`LearnedSimulator.noisy_training_pair`).
         pushforward_steps: model steps without gradient before the loss step (the pushforward trick; the
             datamodule must give samples that many frames longer); 0: DeepMind's single step.
+        unroll_steps: model steps the loss averages over, with the gradient through them
+            (:meth:`LearnedSimulator.noisy_training_rollout`; the datamodule must give samples
+            ``unroll_steps - 1`` frames longer); 1: DeepMind's single step.
         mirror: train on each sample or its left-right reflection, with probability 1/2
             (:mod:`gnsx.model.mirror`).
         lr_init, lr_final, lr_decay_start, lr_decay_end: exponential LR decay (paper eq. 8).
@@ -102,6 +105,7 @@ class GNSSystem(L.LightningModule):
         noise_decay: float = 0.4,
         noise_correction: float = 0.0,
         pushforward_steps: int = 0,
+        unroll_steps: int = 1,
         mirror: bool = False,
         lr_init: float = 1.0e-4,
         lr_final: float = 1.0e-6,
@@ -123,6 +127,8 @@ class GNSSystem(L.LightningModule):
             raise ValueError(f"GNSSystem: noise_correction must be in [0, 1], got {noise_correction}")
         if pushforward_steps < 0:
             raise ValueError(f"GNSSystem: pushforward_steps must be >= 0, got {pushforward_steps}")
+        if unroll_steps < 1:
+            raise ValueError(f"GNSSystem: unroll_steps must be >= 1, got {unroll_steps}")
         if not huber_delta > 0:
             raise ValueError(f"GNSSystem: huber_delta must be > 0, got {huber_delta}")
         self.save_hyperparameters()
@@ -191,7 +197,7 @@ class GNSSystem(L.LightningModule):
             sequence, next_position = random_mirror(
                 sequence, next_position, self.simulator.bounds, batch.batch, num_graphs=batch.num_graphs
             )
-        predicted, target = self.simulator.noisy_training_pair(
+        predicted, target = self.simulator.noisy_training_rollout(
             sequence,
             next_position,
             batch.particle_type,
@@ -199,12 +205,18 @@ class GNSSystem(L.LightningModule):
             batch.batch,
             position_correction=correction,
             pushforward_steps=self.hparams.get("pushforward_steps", 0),  # absent from older checkpoints
-        )
+            unroll_steps=self.hparams.get("unroll_steps", 1),  # absent from checkpoints before 2026-12-07
+        )  # [S, N, D] each
         # Averaged over dynamic particles: static particles are never moved by the model, so they are not in
-        # the loss.
+        # the loss. With an unrolled loss, the mean over its steps.
         dynamic = batch.particle_type != KINEMATIC_PARTICLE_ID
         h = self.hparams
-        loss = acceleration_loss(predicted[dynamic], target[dynamic], h.loss, h.huber_delta)
+        loss = torch.stack(
+            [
+                acceleration_loss(p[dynamic], t[dynamic], h.loss, h.huber_delta)
+                for p, t in zip(predicted, target)
+            ]
+        ).mean()
         size = int(batch.num_graphs)
         self.samples_seen += size
         bad = not bool(torch.isfinite(loss.detach()))

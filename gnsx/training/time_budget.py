@@ -93,7 +93,7 @@ class TrainingClock(Callback):
     @contextmanager
     def paused(self):
         """Time spent inside is counted as validation, not training (for validation run by a callback
-        outside Lightning's loop, :class:`gnsx.training.curves.WallClockValidation`). Yields a
+        outside Lightning's loop, :class:`gnsx.training.curves.CurveValidation`). Yields a
         :class:`Pause` whose ``seconds`` is set on leaving."""
         pause = Pause()
         self._validation_start = time.perf_counter()
