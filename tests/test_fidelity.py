@@ -75,9 +75,39 @@ def test_noise_and_its_decay_come_from_the_model_config_unless_the_train_config_
     assert "noise 0.0001 from train.noise_std (overrides model.noise_std=0.0003)" in caplog.text
 
 
-def test_the_radius_each_config_uses_is_logged_and_recorded_with_its_source(caplog):
+def _data_with_radius(radius: float):
+    """A stand-in data module whose metadata has ``radius`` as its default connectivity radius."""
+    data = _Data()
+    data.metadata = Metadata(**{**_Data.metadata.__dict__, "default_connectivity_radius": radius})
+    return data
+
+
+@pytest.mark.parametrize(
+    "preset_radius, paper_radius",
+    [(0.015, 0.020), (0.035, 0.035 * 0.020 / 0.015)],  # WaterRamps (DeepMind's 0.015), the small preset
+)
+def test_the_simplified_config_uses_the_papers_radius_relative_to_the_data_and_records_it(
+    caplog, preset_radius, paper_radius
+):
+    """The paper fixes its radius at 0.020 on WaterRamps (sections 6.2.1, 9.0.1), where DeepMind's default is
+    0.015: the simplified config scales the dataset's default by 0.020 / 0.015; the original keeps DeepMind's."""
+    data = _data_with_radius(preset_radius)
     with caplog.at_level(logging.INFO, logger="gnsx"):
         cfg = _compose("model=simplified")
+        system = build_system(cfg, data)
+    summary = model_summary(cfg, system)
+    assert summary["radius"] == pytest.approx(paper_radius, rel=1e-4)
+    assert summary["radius_source"] == "model.radius_scale=1.3333 x the dataset's default_connectivity_radius"
+    assert f"connection radius {system.hparams.radius:g} (model.radius_scale=1.3333 x" in caplog.text
+    cfg = _compose("model=original")
+    summary = model_summary(cfg, build_system(cfg, data))
+    assert summary["radius"] == preset_radius
+    assert summary["radius_source"] == "the dataset's default_connectivity_radius"
+
+
+def test_the_radius_each_config_uses_is_logged_and_recorded_with_its_source(caplog):
+    with caplog.at_level(logging.INFO, logger="gnsx"):
+        cfg = _compose("model=simplified_pairwise")  # the demo's model keeps the dataset's radius
         system = build_system(cfg, _Data())
     summary = model_summary(cfg, system)
     assert (
@@ -87,6 +117,9 @@ def test_the_radius_each_config_uses_is_logged_and_recorded_with_its_source(capl
     cfg = _compose("model=simplified", "model.radius=0.02")
     summary = model_summary(cfg, build_system(cfg, _Data()))
     assert (summary["radius"], summary["radius_source"]) == (0.02, "model.radius")
+    with pytest.raises(Exception, match="model.radius_scale=-1"):
+        cfg = _compose("model=simplified", "model.radius_scale=-1")
+        build_system(cfg, _Data())
 
 
 @pytest.mark.parametrize("trainer", ["cpu", "gpu", "ddp"])
