@@ -11,7 +11,9 @@
 - ``{"kind": "val", "step", "time_s", "samples", "rollout_mse", "rollout_mse_se", "onestep_mse",
   "validation_s"}``: the mean over the validation trajectories of the raw network's rollout MSE (position
   units squared, every predicted frame), its standard error over trajectories, and the seconds the
-  validation took (not counted as training).
+  validation took (not counted as training); since 2026-12-07 also ``area_ratio_final`` (± ``_se``: the
+  water's area at the last frame over the truth's) and, in both kinds of row, ``rollout_mse_per_trajectory``
+  (the validation split's order), for paired ratios against the baseline.
 
 ``time_s`` is training seconds since the run started (a resumed run's earlier fits included), ``samples``
 the training samples the weights have seen.

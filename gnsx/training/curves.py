@@ -93,9 +93,8 @@ class CurveValidation(Callback):
             for t in trainer.datamodule.val_set
         ]
         mean, se = mean_se(values)
-        self._write(
-            {"kind": "baseline", "rollout_mse": mean, "rollout_mse_se": se, "trajectories": len(values)}
-        )
+        self._write({"kind": "baseline", "rollout_mse": mean, "rollout_mse_se": se, "trajectories": len(values),
+                     "rollout_mse_per_trajectory": [float(v) for v in values]})  # fmt: skip
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx: int) -> None:
         loss = outputs.get("loss") if isinstance(outputs, dict) else outputs
@@ -143,6 +142,9 @@ class CurveValidation(Callback):
         row["area_ratio_final"], row["area_ratio_final_se"] = mean_se(
             [m["area_ratio_final"] for m in metrics]
         )
+        # Per trajectory (the validation split's order, as the baseline row's): paired ratios with intervals.
+        row["rollout_mse_per_trajectory"] = [float(v) for v in rollout]
+        row["area_ratio_final_per_trajectory"] = [float(m["area_ratio_final"]) for m in metrics]
         row["validation_s"] = paused.seconds
         row["trajectories"] = len(metrics)
         self._write(row)

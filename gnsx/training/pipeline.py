@@ -757,7 +757,8 @@ def run_training(cfg: DictConfig) -> float | None:
     if OmegaConf.select(cfg, "sweep.resume", default=False):
         done = finished_result(results_path)
         if done is not None:
-            log.info("%s: finished earlier (test rollout MSE %.4g): skipped (sweep.resume)", run_dir, done)
+            score = "no test evaluation" if math.isnan(done) else f"test rollout MSE {done:.4g}"
+            log.info("%s: finished earlier (%s): skipped (sweep.resume)", run_dir, score)
             return done
         if (run_dir / "checkpoints" / "last.ckpt").is_file() and cfg.train.ckpt_path is None:
             log.info("%s: resuming from its checkpoints/last.ckpt (sweep.resume)", run_dir)
