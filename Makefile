@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -106,6 +106,16 @@ fig9-mini: install ## Figure 9's 16 cells + seeds 1-2 of 64/5 and 32/5, 10k step
 	@# Every cell timed again together in this (now quiet) process: in-job timings ran beside another job.
 	$(PY) -m gnsx.evaluation.report.retime $(FIG9_MINI_DIR)
 	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR)
+
+LEARNING_DIR ?= multirun/learning/main
+learning: install ## The learning study: 10 arms x 2 seeds, 20 min of one thread each (~4.5 h on 2 cores; resumable), then docs/learning's table and curves
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	@# Jobs finished in an earlier session and committed (docs/learning/jobs/: curves and records) are skipped.
+	@mkdir -p $(LEARNING_DIR); for job in docs/learning/jobs/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(LEARNING_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(LEARNING_DIR)/"; done
+	$(PY) train.py -m --config-dir sweeps --config-name learning hydra.sweep.dir=$(LEARNING_DIR) $(ARGS)
+	$(PY) -m gnsx.evaluation.report.learning $(LEARNING_DIR) --out docs/learning --copy-jobs docs/learning/jobs
 
 radius-mini: install ## Connection-radius sweep (5 radii x seeds 0-1, 64/5, fig9-mini's recipe; ~1 h 20 min on 2 cores; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
