@@ -55,7 +55,7 @@ def _arms() -> list[str]:
 
 def test_every_arm_changes_one_thing_against_the_base_arm():
     arms = _arms()
-    assert arms[0] == "base" and set(arms[1:]) == set(EXPECTED)
+    assert arms[0] == "base" and set(arms[1:]) == set(EXPECTED) and len(arms) == len(EXPECTED) + 1
     base = _compose("base")
     # The base arm is the paper's simplified 64/5 at the paper's radius with the paper's noise, no mirror.
     assert (base["model"]["name"], base["model"]["latent_size"], base["model"]["mp_steps"]) == (
