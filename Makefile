@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -119,6 +119,14 @@ learning: install ## The learning study: 10 arms x 2 seeds, 20 min of one thread
 		[ -e "$(LEARNING_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(LEARNING_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name learning hydra.sweep.dir=$(LEARNING_DIR) $(ARGS)
 	$(PY) -m gnsx.evaluation.report.learning $(LEARNING_DIR) --out docs/learning --copy-jobs docs/learning/jobs
+
+LONG_DIR ?= outputs/learning_long
+learning-long: install ## The learning study's winner trained long: ARM=<arm> (sweeps/learning_arm), 200k steps on one thread (~3.5 h; rerun to resume), scored on the test split beside the shipped weights
+	@[ -n "$(ARM)" ] || { echo "set ARM=<arm of sweeps/learning_arm/>, e.g. make learning-long ARM=base"; exit 2; }
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	$(PY) train.py --config-dir sweeps --config-name learning_long learning_arm=$(ARM) hydra.run.dir=$(LONG_DIR)/$(ARM) \
+		$$([ -f $(LONG_DIR)/$(ARM)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(LONG_DIR)/$(ARM)) $(ARGS)
 
 radius-mini: install ## Connection-radius sweep (5 radii x seeds 0-1, 64/5, fig9-mini's recipe; ~1 h 20 min on 2 cores; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
