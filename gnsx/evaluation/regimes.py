@@ -209,8 +209,7 @@ def table(sources: dict[str, dict]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from gnsx.data.datamodule import TrajectoryDataset
-    from gnsx.data.metadata import load_metadata
-    from gnsx.data.store import open_split
+    from gnsx.data.store import load_metadata, open_split
     from gnsx.model.checkpoint import load_simulator, model_label
 
     parser = argparse.ArgumentParser(
