@@ -30,8 +30,8 @@ def main(cfg: DictConfig) -> float:
     # Imported here: a bad override fails in a second, without loading torch.
     from gnsx.core.threads import apply_threads
     from gnsx.evaluation.evaluate import evaluate_checkpoints
-    from gnsx.model.rules import Rules
-    from gnsx.training.pipeline import build_loggers
+    from gnsx.rules.rules import Rules
+    from gnsx.training.loggers import build_loggers
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     apply_threads(cfg.threads)

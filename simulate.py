@@ -40,9 +40,9 @@ def main(cfg: DictConfig) -> None:
     from gnsx.core.threads import apply_threads
     from gnsx.evaluation.scene_rollout import load_scene, simulate_to_folder
     from gnsx.model.checkpoint import check_fits, checkpoint_path, load_simulator, model_label
-    from gnsx.model.rules import Rules
     from gnsx.mpm.presets import PRESETS, get_preset
     from gnsx.mpm.scenes import Scene
+    from gnsx.rules.rules import Rules
 
     try:
         preset = get_preset(cfg.preset)

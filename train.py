@@ -22,9 +22,8 @@ from gnsx.core.cli import hydra_task, run_hydra
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 @hydra_task
 def main(cfg: DictConfig) -> float | None:
-    from gnsx.training.pipeline import (
-        run_training,  # imported here: a bad override fails in a second, without torch
-    )
+    # Imported here: a bad override fails in a second, without torch.
+    from gnsx.training.run import run_training
 
     return run_training(cfg)
 

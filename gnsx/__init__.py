@@ -10,9 +10,7 @@ every import, those inside functions included)::
 writes datasets in the data format) sit on it; :mod:`gnsx.model` is the GNS family and its rollout loop;
 :mod:`gnsx.evaluation` scores, times and draws a model's rollouts; :mod:`gnsx.training` trains one (its
 validation and checkpoint choice use the same scoring library, which is why evaluation sits below training);
-:mod:`gnsx.perf` and :mod:`gnsx.study` are tools on top. The modules at the package root
-(``benchmark``, ``hardcases``, ``pretrained``, ``report``, ``throughput``) are the old ``python -m`` paths, kept
-as thin aliases of the moved tools for now.
+:mod:`gnsx.perf` and :mod:`gnsx.study` are tools on top.
 """
 
 __version__ = "0.1.0"

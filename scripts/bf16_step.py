@@ -17,6 +17,7 @@ import time
 
 import torch
 
+from gnsx.model.training_targets import noisy_training_pair
 from gnsx.perf.scaling import WATERRAMPS, build_system, training_batch
 
 
@@ -32,8 +33,13 @@ def main(num_particles: int, model: str, rounds: int = 8) -> None:
         context = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
         optimizer.zero_grad(set_to_none=True)
         with context:
-            predicted, target = system.simulator.noisy_training_pair(
-                batch.position_sequence, batch.next_position, batch.particle_type, 1e-4, batch=batch.batch
+            predicted, target = noisy_training_pair(
+                system.simulator,
+                batch.position_sequence,
+                batch.next_position,
+                batch.particle_type,
+                1e-4,
+                batch=batch.batch,
             )
             loss = (predicted.float() - target).square().mean()
         loss.backward()

@@ -2,9 +2,9 @@
 
     .venv/bin/python scripts/free_flight_contact.py data/small_400 train 150
 
-The measurement behind :data:`gnsx.model.freeflight.CLEARANCE`. For every frame of the first ``frames`` of
-each trajectory, the water is split into clusters as :class:`gnsx.model.freeflight.FreeFlight` does
-(:func:`gnsx.model.freeflight.rigid_clusters`, particles closer than ``REACH`` connectivity radii), and a
+The measurement behind :data:`gnsx.rules.freeflight.CLEARANCE`. For every frame of the first ``frames`` of
+each trajectory, the water is split into clusters as :class:`gnsx.rules.freeflight.FreeFlight` does
+(:func:`gnsx.rules.freeflight.rigid_clusters`, particles closer than ``REACH`` connectivity radii), and a
 cluster is kept when it moves as one body (velocities within the rule's tolerance of their mean) and lies at
 least 3 radii from all other water (the MPM's particles feel each other from ~2.6). For each kept cluster, its
 members heading for a wall or a static particle (velocity after gravity) give a distance to that obstacle less
@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.store import load_metadata, open_split
 from gnsx.evaluation.scoring import gravity_per_frame
-from gnsx.model.freeflight import LOOKAHEAD, REACH, TOLERANCE, obstacle_gaps, rigid_clusters
+from gnsx.rules.freeflight import LOOKAHEAD, REACH, TOLERANCE, obstacle_gaps, rigid_clusters
 
 #: Largest deviation from g (data units per frame^2) that still counts as free fall.
 FREE_FALL = 1e-6

@@ -18,9 +18,9 @@ import torch
 
 from gnsx.core.allocator import retain_freed_memory
 from gnsx.model.checkpoint import load_simulator
-from gnsx.model.rollout import rollout
-from gnsx.model.rules import Rules
 from gnsx.perf.scaling import scaling_scene
+from gnsx.rules.rollout import rollout_with_rules
+from gnsx.rules.rules import Rules
 
 
 def main(sizes: list[int], rounds: int = 7, frames: int = 20) -> None:
@@ -33,12 +33,12 @@ def main(sizes: list[int], rounds: int = 7, frames: int = 20) -> None:
         for _ in range(rounds):
             for free_flight in (True, False):
                 start = time.perf_counter()
-                rollout(
+                rollout_with_rules(
                     simulator,
                     sequence,
                     particle_type,
                     frames,
-                    rules=dataclasses.replace(Rules.production(), free_flight=free_flight),
+                    dataclasses.replace(Rules.production(), free_flight=free_flight),
                 )
                 times[free_flight].append(1000 * (time.perf_counter() - start) / frames)
         for free_flight, values in times.items():

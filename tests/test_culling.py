@@ -1,4 +1,5 @@
-"""Exact culling (gnsx.model.culling) gives the full graph's predictions; freezing holds resting water.
+"""Exact culling (gnsx.model.culling) gives the full graph's predictions (freezing, its approximate cousin in
+the rules layer: tests/test_freezing.py).
 
 Tolerance of "identical": normalised accelerations of dynamic particles agree to ``rtol = atol = 1e-5``
 (values are O(1); observed differences are 0 to ~1e-7, the rounding of matrix products over fewer rows), next
@@ -11,13 +12,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import EncodeProcessDecode, LearnedSimulator, rollout
 from gnsx.model.culling import hop_distance, particles_in_reach, plan_culling
+from gnsx.model.training_targets import noisy_training_pair
 from gnsx.perf.benchmark import MODELS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -308,8 +309,8 @@ def test_training_loss_and_gradients_are_the_same(name):
     for cull in (True, False):
         simulator.cull = cull
         simulator.zero_grad()
-        predicted, target = simulator.noisy_training_pair(
-            window, next_position, types, 3e-4, generator=torch.Generator().manual_seed(5)
+        predicted, target = noisy_training_pair(
+            simulator, window, next_position, types, 3e-4, generator=torch.Generator().manual_seed(5)
         )
         loss = acceleration_loss(predicted[dynamic], target[dynamic])
         loss.backward()
@@ -324,50 +325,16 @@ def test_training_loss_and_gradients_are_the_same(name):
     torch.testing.assert_close(results[0][1], results[1][1], rtol=1e-4, atol=1e-6 * scale)
 
 
-def test_switches_are_in_the_config_and_checked():
-    simulator = make("simplified", cull=False, freeze_speed=1e-5)
-    assert (simulator.config["cull"], simulator.config["freeze_speed"]) == (False, 1e-5)
+def test_the_switch_is_in_the_config():
+    simulator = make("simplified", cull=False)
+    assert simulator.config["cull"] is False
     rebuilt = LearnedSimulator(**simulator.config)
-    assert not rebuilt.cull and rebuilt.freeze_speed == 1e-5
-    rebuilt.cull, rebuilt.freeze_speed = True, None
-    assert rebuilt.config["cull"] and rebuilt.config["freeze_speed"] is None
+    assert not rebuilt.cull
+    rebuilt.cull = True
+    assert rebuilt.config["cull"]
     assert make("simplified").cull  # on by default
-    with pytest.raises(ValueError, match="freeze_speed"):
-        make("simplified", freeze_speed=0.0)
-
-
-# ------------------------------------------------------------------------------------------------ freezing
-
-
-def test_freezing_holds_resting_water_far_from_motion_only():
-    simulator = make("simplified", freeze_speed=1e-5)
-    # A pool at rest on the left, a block moving on the right, farther apart than the cells' reach.
-    spacing = 0.0156
-    pool = 0.11 + spacing * torch.cartesian_prod(torch.arange(8), torch.arange(6)).float()
-    block = (
-        torch.tensor([0.75, 0.6]) + spacing * torch.cartesian_prod(torch.arange(5), torch.arange(5)).float()
-    )
-    beside_block = torch.tensor([[0.75 - 2 * spacing, 0.6]])  # at rest, but next to the moving block
-    position = torch.cat([pool, block, beside_block])
-    velocity = torch.zeros_like(position)
-    velocity[len(pool) : len(pool) + len(block)] = torch.tensor([0.0, -2e-3])
-    types = torch.full((len(position),), WATER_PARTICLE_ID)
-    window = window_of(position, velocity, simulator.history)
-    frozen = simulator.frozen_particles(window, types)
-    assert bool(frozen[: len(pool)].all()) and not bool(frozen[len(pool) :].any())
-    with torch.no_grad():
-        held = simulator.predict_positions(window, types)
-        assert torch.equal(held[frozen], window[frozen, -1])
-        simulator.freeze_speed = None
-        free = simulator.predict_positions(window, types)
-    assert not torch.equal(free[frozen], window[frozen, -1])  # the model would have moved them
-    torch.testing.assert_close(held[~frozen], free[~frozen], **POSITION_TOLERANCE)  # the pool is out of reach
-    # Something moving into reach wakes the pool up.
-    moved = position.clone()
-    moved[len(pool) :] = moved[len(pool) :] - torch.tensor([0.55, 0.45])
-    simulator.freeze_speed = 1e-5
-    assert not bool(simulator.frozen_particles(window_of(moved, velocity, 1), types)[: len(pool)].all())
-    assert np.isclose(simulator.reach, 5 * 0.035)
+    with pytest.raises(TypeError, match="freeze_speed"):  # a rule of the layer above (gnsx.rules.freezing)
+        make("simplified", freeze_speed=1e-5)
 
 
 # ------------------------------------------------------------------------------------------------ benchmark
@@ -404,5 +371,5 @@ def test_freeze_check_against_the_exact_path():
     rows = freeze_check(simulator, [("floor", window, types, truth)], freeze_speed=5e-3, emd_every=2)
     row = rows[0]
     assert row["frames"] == 4 and row["frozen_share"] > 0.5 and row["mse_vs_exact"] > 0
-    assert "rollout_mse_freeze" in row and simulator.freeze_speed is None  # the switch is restored
+    assert "rollout_mse_freeze" in row and simulator.cull  # the model is left as it was
     assert "| floor |" in format_freeze(rows)

@@ -1,4 +1,4 @@
-"""The density limit (gnsx/model/density.py): it leaves water at rest density alone, spreads compressed water
+"""The density limit (gnsx/rules/density.py): it leaves water at rest density alone, spreads compressed water
 back toward it, keeps the centre of mass, never moves static particles and survives coincident particles."""
 
 import math
@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.model.density import DensityLimit, lattice_density
+from gnsx.rules.density import DensityLimit, lattice_density
 
 SPACING = 0.015625
 RADIUS = 0.035

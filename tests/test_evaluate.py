@@ -38,8 +38,8 @@ from gnsx.evaluation.scoring import (
     summarise,
 )
 from gnsx.model.checkpoint import load_simulator, model_label
-from gnsx.model.rules import Rules
 from gnsx.perf.benchmark import build_model, format_results, measure_inference, packed_scene
+from gnsx.rules.rules import Rules
 from gnsx.training.system import GNSSystem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,7 +205,7 @@ def test_table_says_loudly_when_the_model_does_not_beat_the_baseline(monkeypatch
 def test_scoring_imports_nothing_of_the_training_code():
     code = (
         "import sys, gnsx.evaluation.scoring\n"
-        "heavy = ('gnsx.training.pipeline', 'gnsx.evaluation.evaluate', 'gnsx.training.system')\n"
+        "heavy = ('gnsx.training.run', 'gnsx.evaluation.evaluate', 'gnsx.training.system')\n"
         "bad = [m for m in heavy if m in sys.modules]\n"
         "assert not bad, bad"
     )

@@ -17,7 +17,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from gnsx.data.metadata import Metadata
-from gnsx.training.pipeline import apply_matmul_precision, build_system, combine_std, model_summary
+from gnsx.training.builders import apply_matmul_precision, build_system
+from gnsx.training.model_settings import combine_std, model_summary
 from gnsx.training.schedule import learning_rate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""Water in free flight falls at g (gnsx/model/freeflight.py): a cluster that touches nothing and moves as one
+"""Water in free flight falls at g (gnsx/rules/freeflight.py): a cluster that touches nothing and moves as one
 body takes the exact free-fall step; one that breaks ranks or comes near a wall or a ramp is the model's."""
 
 import dataclasses
@@ -11,9 +11,11 @@ import torch
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.core.errors import ConfigError
 from gnsx.model.checkpoint import load_simulator
-from gnsx.model.freeflight import FreeFlight
 from gnsx.model.rollout import rollout
-from gnsx.model.rules import Rules
+from gnsx.rules.freeflight import FreeFlight
+from gnsx.rules.rollout import rollout_with_rules
+from gnsx.rules.rules import Rules
+from gnsx.rules.scale import rules_radius
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
 GRAVITY = torch.tensor([0.0, -6e-5], dtype=torch.float64)  # per frame^2
@@ -115,15 +117,15 @@ def test_the_shipped_models_rollout_of_a_block_in_free_flight_is_exact_until_it_
     steps = 20  # the block's bottom falls from 0.6 to ~0.55: far above the floor's clearance
     g = rule.gravity.float()
     exact = torch.stack([current + k * velocity + k * (k + 1) / 2 * g for k in range(1, steps + 1)])
-    held = rollout(simulator, window_of(current, velocity), types, steps, rules=Rules.production())
+    held = rollout_with_rules(simulator, window_of(current, velocity), types, steps, Rules.production())
     without_flight = dataclasses.replace(Rules.production(), free_flight=False)
-    model = rollout(simulator, window_of(current, velocity), types, steps, rules=without_flight)
+    model = rollout_with_rules(simulator, window_of(current, velocity), types, steps, without_flight)
     raw = rollout(simulator, window_of(current, velocity), types, steps)  # the default: no rule
     # float32 round-off only (velocities are position differences: ~1e-7 per step, summed over 20 steps)
     assert (held - exact).abs().max() < 2e-5
     assert (model - exact).abs().max() > 1e-4  # the model alone shuffles the block's particles (3.9 mm)
     assert torch.equal(
-        raw, rollout(simulator, window_of(current, velocity), types, steps, rules=Rules.none())
+        raw, rollout_with_rules(simulator, window_of(current, velocity), types, steps, Rules.none())
     )
     assert (raw - exact).abs().max() > 1e-4
 
@@ -152,8 +154,8 @@ def test_rules_read_from_configs_and_from_older_results():
 def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():
     """A model whose graph reaches 0.05 on data of radius 0.035 keeps the MPM's reach (2 x 0.035): with the
     model's radius free flight reached 0.1 and missed most fresh blocks (docs/decisions)."""
-    from gnsx.model.rest import RestHold
     from gnsx.model.simulator import LearnedSimulator
+    from gnsx.rules.rest import RestHold
 
     facts = dict(
         dim=2,
@@ -169,5 +171,5 @@ def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():
     assert RestHold.for_simulator(wide).radius == pytest.approx(0.035)
     # Checkpoints saved before data_radius existed used the data's radius as the model's.
     older = LearnedSimulator(radius=0.035, **facts)
-    assert older.rules_radius == 0.035 and FreeFlight.for_simulator(older).reach == pytest.approx(0.07)
-    assert LearnedSimulator(**wide.config).rules_radius == 0.035  # travels with the checkpoint's config
+    assert rules_radius(older) == 0.035 and FreeFlight.for_simulator(older).reach == pytest.approx(0.07)
+    assert rules_radius(LearnedSimulator(**wide.config)) == 0.035  # travels with the checkpoint's config

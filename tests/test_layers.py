@@ -1,16 +1,18 @@
 """The package's architecture, checked from its source: no import circle among gnsx modules (imports inside
 functions included), and dependencies that run one way between the layers.
 
-Layers, lowest first (README, "Code structure"): ``core`` <- ``data``, ``mpm`` <- ``model`` <- ``evaluation``
-<- ``training`` <- ``perf``, ``study``. A module may import its own layer and those below it. Entry points
-(``__main__`` modules and the old ``python -m`` aliases at the package root) sit above every layer; nothing
-inside gnsx imports them.
+Layers, lowest first (README, "Code structure"): ``core`` <- ``data``, ``mpm`` <- ``model`` <- ``rules`` <-
+``evaluation`` <- ``training`` <- ``perf``, ``study``. ``rules`` (the simulator's hand-written rules) sits
+above ``model``, so the model reads as the paper's and knows nothing of them: they reach its one rollout loop
+through the loop's extension points (``gnsx.model.rollout``'s ``constraints`` and ``predict``). A module may
+import its own layer and those below it. Entry points (``__main__`` modules) sit above every layer and nothing
+inside gnsx imports them; yet an entry point lives in its layer's package, so each import of one across the
+layers is named, with its reason, in ``CROSS_LAYER_ENTRY_POINTS``.
 """
 
 from __future__ import annotations
 
 import ast
-import importlib
 import subprocess
 import sys
 from pathlib import Path
@@ -20,18 +22,18 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "gnsx"
 
 #: Layer of each subpackage; a module may import modules of its own layer or a lower one.
-LAYERS = {"core": 0, "data": 1, "mpm": 1, "model": 2, "evaluation": 3, "training": 4, "perf": 5, "study": 5}
-#: ``python -m`` paths kept from before the layout (thin aliases of the moved tools).
-ALIASES = {
-    "gnsx.benchmark",
-    "gnsx.hardcases",
-    "gnsx.pretrained",
-    "gnsx.report",
-    "gnsx.throughput",
-    "gnsx.mpm.sensitivity",
-}
+LAYERS = {"core": 0, "data": 1, "mpm": 1, "model": 2, "rules": 3, "evaluation": 4, "training": 5, "perf": 6,
+          "study": 6}  # fmt: skip
 #: Pairs of layers that may not import each other although neither sits below the other.
 SIBLINGS_APART = {("data", "mpm"): "data"}  # mpm writes the data format; data's CLI is an entry point
+#: Each entry point that imports a layer its own layer may not import, as (entry point, layer): why. Every
+#: other import of an entry point keeps to the layers like a library module's.
+CROSS_LAYER_ENTRY_POINTS = {
+    ("gnsx.data.__main__", "mpm"): (
+        "the data CLI's `generate` runs the MPM solver: generating a dataset is a data task for the user, "
+        "while the data layer's library modules never import the MPM"
+    ),
+}
 
 
 def module_names() -> dict[str, Path]:
@@ -105,7 +107,12 @@ def layer_of(module: str) -> str | None:
 
 
 def is_entry_point(module: str) -> bool:
-    return module in ALIASES or module.endswith(".__main__")
+    return module.endswith(".__main__")
+
+
+def against_the_layers(here: str, there: str) -> bool:
+    """Whether a module of layer ``here`` importing one of layer ``there`` goes against the layers."""
+    return LAYERS[there] > LAYERS[here] or (LAYERS[there] == LAYERS[here] and (here, there) in SIBLINGS_APART)
 
 
 def test_the_cycle_finder_finds_a_circle_through_function_level_imports(tmp_path):
@@ -124,8 +131,8 @@ def test_no_import_circle(graph):
 
 
 def test_every_module_belongs_to_a_layer(graph):
-    """New code goes into a layer; the package root holds only the old ``python -m`` aliases."""
-    loose = [m for m in graph if m != "gnsx" and layer_of(m) is None and m not in ALIASES]
+    """New code goes into a layer: gnsx/ holds only its layers and ``__init__.py``."""
+    loose = [m for m in graph if m != "gnsx" and layer_of(m) is None]
     assert not loose, f"modules outside the layers {sorted(LAYERS)}: {loose}"
 
 
@@ -145,6 +152,31 @@ def test_dependencies_run_one_way(graph):
             ):
                 wrong.append(f"{module} ({here}) imports {target} ({there})")
     assert not wrong, "imports against the layers:\n" + "\n".join(sorted(wrong))
+
+
+def test_the_data_library_never_imports_the_mpm(graph):
+    """Only the data CLI reaches the MPM (``CROSS_LAYER_ENTRY_POINTS``); the data layer's library does not."""
+    wrong = [f"{module} imports {target}" for module, imports in graph.items()
+             if layer_of(module) == "data" and not is_entry_point(module)
+             for target in imports if layer_of(target) == "mpm"]  # fmt: skip
+    assert not wrong, "the data layer's library imports the MPM:\n" + "\n".join(sorted(wrong))
+
+
+def test_entry_points_cross_the_layers_only_where_listed(graph):
+    """Every import of an entry point against the layers is listed with its reason, and every listed one is
+    still made (a stale exception would hide a new one)."""
+    crossing = {}
+    for module, imports in graph.items():
+        if not is_entry_point(module) or (here := layer_of(module)) is None:
+            continue
+        for target in imports:
+            there = layer_of(target)
+            if there is not None and there != here and against_the_layers(here, there):
+                crossing.setdefault((module, there), []).append(target)
+    unlisted = {key: sorted(found) for key, found in crossing.items() if key not in CROSS_LAYER_ENTRY_POINTS}
+    assert not unlisted, f"entry points importing across the layers without a listed reason: {unlisted}"
+    stale = set(CROSS_LAYER_ENTRY_POINTS) - set(crossing)
+    assert not stale, f"listed in CROSS_LAYER_ENTRY_POINTS but no longer imported: {sorted(stale)}"
 
 
 #: Run in a fresh interpreter: the third-party libraries are imported once, then each gnsx module is imported
@@ -175,10 +207,3 @@ def test_every_module_imports_on_its_own():
         [sys.executable, "-c", _IMPORT_EACH, *modules], capture_output=True, text=True, cwd=PACKAGE.parent
     )
     assert result.returncode == 0, result.stderr.strip()
-
-
-def test_aliases_name_existing_tools():
-    for alias in ALIASES:
-        text = (PACKAGE.parent / (alias.replace(".", "/") + ".py")).read_text()
-        target = text.split('run_module("')[1].split('"')[0]
-        assert importlib.util.find_spec(target) is not None, f"{alias} points at a missing {target}"

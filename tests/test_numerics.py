@@ -12,8 +12,8 @@ from test_train import CONF, TINY
 import gnsx.training.system
 from gnsx.data.datamodule import ParticleDataModule
 from gnsx.data.store import load_metadata
+from gnsx.training.builders import build_trainer
 from gnsx.training.numerics import Diverged, SkippedSteps, finite_gradients
-from gnsx.training.pipeline import build_trainer
 from gnsx.training.system import GNSSystem
 
 MODEL = {"latent_size": 8, "mlp_hidden_size": 8, "mp_steps": 2}

@@ -6,6 +6,7 @@ import torch
 
 from gnsx.model.edge_ops import add_product_, receiver_offsets
 from gnsx.model.padding import EDGE_BUCKET, NODE_BUCKET, needs_padding, pad_graph
+from gnsx.model.training_targets import noisy_training_pair
 from gnsx.perf.benchmark import build_model
 
 
@@ -85,7 +86,7 @@ def test_bf16_training_pair_close_to_fp32():
     for bf16 in (False, True):
         simulator.zero_grad()
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            predicted, target = simulator.noisy_training_pair(sequence, next_position, particle_type, 0.0)
+            predicted, target = noisy_training_pair(simulator, sequence, next_position, particle_type, 0.0)
             loss = (predicted[dynamic].float() - target[dynamic]).square().mean()
         loss.backward()
         grads = torch.cat([p.grad.flatten() for p in simulator.parameters() if p.grad is not None])

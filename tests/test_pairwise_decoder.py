@@ -5,8 +5,8 @@ import torch
 from test_simulator import METADATA, make_simulator, scene
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
-from gnsx.model.features import edge_features
-from gnsx.model.simulator import wall_contact_gate
+from gnsx.model.features import edge_features, wall_contact_gate
+from gnsx.model.training_targets import noisy_training_pair
 
 GRAVITY = [0.0, -9.8 * 0.0025**2]  # per frame^2, WaterRamps' dt
 PAIRWISE = dict(decoder="pairwise", gravity=GRAVITY, wall_clip=(0.0, 10.0))
@@ -124,8 +124,8 @@ def test_culled_pairwise_prediction_equals_the_full_graph():
 def test_pairwise_gradients_flow_to_every_parameter():
     simulator = make_simulator({}, **PAIRWISE)
     positions, types = scene(num_water=60, num_static=20, frames=2)
-    predicted, target = simulator.noisy_training_pair(
-        positions[:, :2], positions[:, 1], types, noise_std=1e-4
+    predicted, target = noisy_training_pair(
+        simulator, positions[:, :2], positions[:, 1], types, noise_std=1e-4
     )
     ((predicted - target)[types != KINEMATIC_PARTICLE_ID] ** 2).mean().backward()
     missing = [

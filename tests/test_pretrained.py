@@ -15,9 +15,9 @@ from omegaconf import OmegaConf
 from gnsx.data.metadata import Metadata
 from gnsx.evaluation.scoring import score_trajectory
 from gnsx.model.checkpoint import load_simulator
-from gnsx.model.rules import Rules
 from gnsx.mpm.generate import simulate_split_item
 from gnsx.mpm.presets import Preset
+from gnsx.rules.rules import Rules
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "pretrained" / "small"

@@ -31,7 +31,7 @@ from gnsx.evaluation.scoring import summarise
 
 
 def _job(sweep_dir: Path, number: int, results: dict | None, hydra_model: dict | None = None) -> Path:
-    """A job folder as Hydra + gnsx.training.pipeline leave it: .hydra/config.yaml, results.json, a frame PNG."""
+    """A job folder as Hydra + gnsx.training.run leave it: .hydra/config.yaml, results.json, a frame PNG."""
     folder = sweep_dir / str(number)
     (folder / ".hydra").mkdir(parents=True)
     model = hydra_model or (results or {}).get("model_config", {})

@@ -1,4 +1,4 @@
-"""Water at rest stays at rest (gnsx/model/rest.py): slow, unaccelerated particles are held; a particle at the
+"""Water at rest stays at rest (gnsx/rules/rest.py): slow, unaccelerated particles are held; a particle at the
 top of its arc (slow, but falling at g), a fast one and one beside a restless neighbour are not; the shipped
 weights keep a pool at rest with it, where they let it slosh without it, and still break a dam placed at
 rest."""
@@ -19,8 +19,8 @@ from gnsx.evaluation.hardcases import (
     rest_drift,
 )
 from gnsx.model.checkpoint import load_simulator
-from gnsx.model.rest import RestHold
-from gnsx.model.rules import Rules
+from gnsx.rules.rest import RestHold
+from gnsx.rules.rules import Rules
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
 
@@ -170,12 +170,12 @@ def test_shipped_weights_hold_a_deep_pool_only_with_test_4():
     """The ``dense_10x`` hard case (0.78 m of water, wall to wall; the MPM's fastest particle 0.15 m/s
     over 250 frames): over 20 frames it stays put with test 4 and starts to collapse without it."""
     from gnsx.evaluation.hardcases import _cpu_case
-    from gnsx.model.rollout import rollout
+    from gnsx.rules.rollout import rollout_with_rules
 
     simulator, initial, types = _cpu_case(load_simulator(SHIPPED), "dense_10x")
     speeds = {}
     for level in (True, False):
-        positions = rollout(simulator, initial, types, 20, rules=Rules(hold_rest=True, level_pool=level))
+        positions = rollout_with_rules(simulator, initial, types, 20, Rules(hold_rest=True, level_pool=level))
         speeds[level] = float((positions[1:] - positions[:-1]).norm(dim=-1).max()) / 0.0025  # m/s
     assert speeds[True] < 0.15
     assert speeds[False] > 0.5

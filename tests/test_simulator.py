@@ -9,7 +9,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.model import LearnedSimulator, physics_free_baseline, random_walk_noise, rollout
 from gnsx.model.boundary import Boundary
 from gnsx.model.features import edge_features, type_scalar_feature, wall_features
-from gnsx.model.rules import Rules
+from gnsx.model.training_targets import noisy_training_pair, noisy_training_rollout
 
 # WaterRamps metadata (DeepMind's metadata.json; gnsx.data.waterramps).
 METADATA = dict(
@@ -171,8 +171,8 @@ def test_noisy_target_corrects_velocity_noise_only(name):
     positions, types = scene(frames=simulator.input_frames + 1)
     window, next_position = positions[:, :-1], positions[:, -1]
     noise_std = 3e-4
-    predicted, target = simulator.noisy_training_pair(
-        window, next_position, types, noise_std, generator=torch.Generator().manual_seed(7)
+    predicted, target = noisy_training_pair(
+        simulator, window, next_position, types, noise_std, generator=torch.Generator().manual_seed(7)
     )
     noise = random_walk_noise(window, noise_std, types, generator=torch.Generator().manual_seed(7))
     noisy = window + noise
@@ -195,8 +195,14 @@ def test_noise_position_correction_leads_the_target_back_to_the_truth(correction
     simulator = make_simulator(SIMPLIFIED)
     positions, types = scene(frames=simulator.input_frames + 1)
     window, next_position = positions[:, :-1], positions[:, -1]
-    pair = lambda c: simulator.noisy_training_pair(  # noqa: E731
-        window, next_position, types, 3e-4, generator=torch.Generator().manual_seed(7), position_correction=c
+    pair = lambda c: noisy_training_pair(
+        simulator,  # noqa: E731
+        window,
+        next_position,
+        types,
+        3e-4,
+        generator=torch.Generator().manual_seed(7),
+        position_correction=c,
     )
     predicted, deepmind = pair(0.0)
     predicted_c, corrected = pair(correction)
@@ -220,8 +226,13 @@ def test_pushforward_starts_the_loss_step_where_the_model_got_to(name):
     steps = 2
     positions, types = scene(frames=simulator.input_frames + steps + 1)
     window, next_position = positions[:, :-1], positions[:, -1]
-    pair = lambda noise: simulator.noisy_training_pair(  # noqa: E731
-        window, next_position, types, noise, pushforward_steps=steps
+    pair = lambda noise: noisy_training_pair(
+        simulator,  # noqa: E731
+        window,
+        next_position,
+        types,
+        noise,
+        pushforward_steps=steps,
     )
     predicted, target = pair(0.0)
     # By hand: the model's own two steps from the oldest frames, then one step scored against the truth.
@@ -240,7 +251,7 @@ def test_pushforward_starts_the_loss_step_where_the_model_got_to(name):
     predicted, target = pair(3e-4)
     assert predicted.requires_grad and not target.requires_grad
     with pytest.raises(ValueError, match="pushforward_steps 1 and unroll_steps 1 needs"):
-        simulator.noisy_training_pair(window, next_position, types, 0.0, pushforward_steps=1)
+        noisy_training_pair(simulator, window, next_position, types, 0.0, pushforward_steps=1)
 
 
 @pytest.mark.parametrize("name", CONFIGS)
@@ -249,8 +260,8 @@ def test_unrolled_loss_steps_follow_the_models_own_rollout_with_gradient(name):
     steps = 3
     positions, types = scene(frames=simulator.input_frames + steps)
     window, next_position = positions[:, :-1], positions[:, -1]
-    predicted, target = simulator.noisy_training_rollout(
-        window, next_position, types, 0.0, unroll_steps=steps
+    predicted, target = noisy_training_rollout(
+        simulator, window, next_position, types, 0.0, unroll_steps=steps
     )
     assert predicted.shape == target.shape == (steps, *next_position.shape)
     # By hand: each step from the model's own positions, scored against the true frame after it, the
@@ -266,8 +277,8 @@ def test_unrolled_loss_steps_follow_the_models_own_rollout_with_gradient(name):
         assert torch.allclose(target[step], expected, atol=2e-3)
         current = torch.cat([current[:, 1:], simulator.predict_positions(current, types).unsqueeze(1)], dim=1)
     # The first step is the single step of before.
-    single = simulator.noisy_training_pair(
-        window[:, : simulator.input_frames], positions[:, simulator.input_frames], types, 0.0
+    single = noisy_training_pair(
+        simulator, window[:, : simulator.input_frames], positions[:, simulator.input_frames], types, 0.0
     )
     assert torch.allclose(predicted[0], single[0]) and torch.allclose(target[0], single[1])
     # The gradient of a later step reaches the weights through the earlier steps' predictions too: the last
@@ -277,7 +288,7 @@ def test_unrolled_loss_steps_follow_the_models_own_rollout_with_gradient(name):
     (grad,) = torch.autograd.grad(loss_last, first_output, retain_graph=True)
     assert grad.abs().sum() > 0
     with pytest.raises(ValueError, match="unroll_steps 3 needs"):
-        simulator.noisy_training_rollout(window[:, :-1], next_position, types, 0.0, unroll_steps=steps)
+        noisy_training_rollout(simulator, window[:, :-1], next_position, types, 0.0, unroll_steps=steps)
 
 
 def test_batched_forward_equals_single_forwards():
@@ -299,8 +310,8 @@ def test_rollout_feeds_back_and_holds_static_particles():
     static = types == KINEMATIC_PARTICLE_ID
     boundary = Boundary.from_particles(simulator.bounds, positions[:, -1], types)
     for constrain in (False, True):
-        # The boundary alone: the rules have their own tests, and the density limit acts on this random scene.
-        predicted = rollout(simulator, positions, types, num_steps=4, constrain=constrain, rules=Rules.none())
+        # The boundary alone (no constraints: the rules have their own tests in their layer, gnsx.rules).
+        predicted = rollout(simulator, positions, types, num_steps=4, constrain=constrain)
         assert predicted.shape == (4, len(types), 2)
         assert torch.equal(predicted[:, static], positions[static, -1].expand(4, -1, -1))
         # Step by step by hand: a sliding window of the last history + 1 frames.

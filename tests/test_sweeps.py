@@ -19,7 +19,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from gnsx.evaluation.report import build_report, load_sweep
-from gnsx.training.pipeline import Diverged, as_divergence, one_line
+from gnsx.training.job import as_divergence, one_line
+from gnsx.training.numerics import Diverged
 from gnsx.training.time_budget import TrainingClock
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,6 +66,20 @@ def test_fig9_sweeps_are_the_papers_grid():
     assert mini.hydra.launcher.n_jobs * mini.sweep.torch_threads <= 2
 
 
+def test_fig9_mini_trains_at_the_papers_radius_with_the_papers_recipe_compressed():
+    """Figure 9 as the paper ran it: the simplified model's radius (0.020/0.015 x the data's default, not a
+    fixed number), its noise decayed with the LR, no mirror, lr 1e-4 held to 62.5% of the run and decayed to
+    1e-6 by 93.75% (1.0M and 1.5M of its 1.6M steps)."""
+    mini = _compose_sweep("fig9_mini")
+    assert mini.model.radius is None and mini.model.radius_scale == pytest.approx(0.020 / 0.015, rel=1e-4)
+    assert mini.train.noise_std is None and mini.train.noise_decay is None and not mini.train.mirror
+    assert (mini.model.noise_std, mini.model.noise_decay) == (3e-4, 0.4)
+    steps = mini.train.max_steps
+    assert (mini.train.lr_init, mini.train.lr_final) == (1e-4, 1e-6)
+    assert (mini.train.lr_decay_start / steps, mini.train.lr_decay_end / steps) == (0.625, 0.9375)
+    assert mini.data.root.endswith("small_400")
+
+
 def test_radius_sweeps_scale_waterramps_radii_to_the_small_preset():
     full, mini = _compose_sweep("radius"), _compose_sweep("radius_mini")
     full_radii = [float(r) for r in _grid(full)["model.radius"]]
@@ -103,7 +118,7 @@ def test_non_finite_positions_count_as_divergence_and_reasons_are_one_line():
 
 def test_training_clock_leaves_validation_out(monkeypatch):
     now = [100.0]
-    monkeypatch.setattr("gnsx.training.pipeline.time.perf_counter", lambda: now[0])
+    monkeypatch.setattr("gnsx.training.time_budget.time.perf_counter", lambda: now[0])
     clock = TrainingClock()
     assert clock.summary() == {"train_wall_s": None, "train_steps": 0, "steps_per_s": None}
     trainer = SimpleNamespace(global_step=10)  # a resumed run: its own steps only
@@ -172,7 +187,9 @@ def test_grid_multirun_records_every_job_and_the_report_shows_them(tmp_path, tin
         assert job["sweep"] == "fig9_mini"
         latent, mp = (int(part.split("=")[1]) for part in name.split(","))
         assert (job["model_config"]["latent_size"], job["model_config"]["mp_steps"]) == (latent, mp)
-        assert job["model_config"]["mlp_hidden_size"] == latent and job["model_config"]["radius"] == 0.035
+        assert job["model_config"]["mlp_hidden_size"] == latent
+        # The simplified model's radius: model.radius_scale (0.020/0.015) x the tiny data's default 0.035.
+        assert job["model_config"]["radius"] == pytest.approx(1.3333 * 0.035)
         assert job["train_steps"] == 3 and job["steps_per_s"] > 0 and job["train_wall_s"] > 0
         assert job["parameters"] > 0 and job["job_wall_s"] >= job["train_wall_s"]
         assert math.isfinite(job["test"]["rollout_mse"]) and job["test"]["rollout_mse"] > 0
@@ -274,7 +291,7 @@ def test_joblib_launcher(tmp_path, tiny_dataset):
 def test_benchmark_at_waterramps_size_grows_a_small_domain():
     from gnsx.data.metadata import Metadata
     from gnsx.model.simulator import LearnedSimulator
-    from gnsx.training.pipeline import benchmark_at_scale
+    from gnsx.training.sweep_extras import benchmark_at_scale
 
     meta = Metadata(bounds=[[0.1, 0.9], [0.1, 0.9]], sequence_length=10, default_connectivity_radius=0.035,
                     dim=2, dt=0.0025, vel_mean=[0.0, 0.0], vel_std=[2e-3, 2e-3], acc_mean=[0.0, 0.0],

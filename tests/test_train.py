@@ -14,7 +14,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from gnsx.data.metadata import Metadata
-from gnsx.training.pipeline import architecture, build_system, samples_before
+from gnsx.training.builders import build_system, samples_before
+from gnsx.training.model_settings import architecture
 from gnsx.training.precision import resolve_precision
 from gnsx.training.system import GNSSystem
 

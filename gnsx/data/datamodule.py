@@ -34,7 +34,7 @@ class FrameDataset(Dataset):
         self.history = history
         self.lead = lead
         # The model's H + 1 input frames, ``lead`` frames it predicts itself before the last loss step (the
-        # pushforward trick and the unrolled loss, LearnedSimulator.noisy_training_rollout), and the target.
+        # pushforward trick and the unrolled loss, gnsx.model.training_targets.noisy_training_rollout), and the target.
         frames = history + 1 + lead
         counts = np.array([max(reader.num_frames(i) - frames, 0) for i in range(len(reader))], np.int64)
         if counts.sum() == 0:

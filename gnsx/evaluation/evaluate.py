@@ -29,8 +29,8 @@ from gnsx.evaluation.scoring import (
 )
 from gnsx.evaluation.spread import compare, format_comparison
 from gnsx.model.checkpoint import check_fits, load_simulator, model_label, slug
-from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.rules.rules import Rules
 
 log = logging.getLogger("gnsx")
 
@@ -140,7 +140,7 @@ def with_rules_table(
     """The same trajectories scored again with the simulator's ``rules`` on the model's rollouts, printed and
     returned beside the raw table (None when no rule is on).
 
-    The figure measures model + rules (module :mod:`gnsx.model.rules`), so it is labelled so and never
+    The figure measures model + rules (module :mod:`gnsx.rules.rules`), so it is labelled so and never
     replaces the raw one. Timing is left to the raw table (``timing_repeats=0`` here): ms/frame times the
     network, which the rules do not change.
 
@@ -213,7 +213,7 @@ def evaluate_checkpoints(
         checkpoints: ``.ckpt`` files or run directories.
         data_root: the gnsx dataset (its metadata gives bounds, dt and the neighbour radius).
         labels: one per checkpoint (default :func:`~gnsx.model.checkpoint.model_label`, made unique).
-        rules: the simulator's rules for a second table beside the raw one (:class:`gnsx.model.rules.Rules`;
+        rules: the simulator's rules for a second table beside the raw one (:class:`gnsx.rules.rules.Rules`;
             None or all off: the raw table alone); recorded in ``results.json``.
         allow_mismatch: evaluate a model on data unlike its training data (another dimension, walls, or a
             connectivity radius more than 2x apart, :func:`~gnsx.model.checkpoint.check_fits`); refused otherwise.

@@ -7,10 +7,12 @@ Every case is a :class:`gnsx.mpm.scenes.Scene` of the ``small`` preset (walls at
 into corners, walls and ramps, a head-on collision, a tall column, water exactly on the walls and on a ramp,
 a pool at rest, a single particle, ramps without water, scenes 4x and ~10x the training particle count (268
 water particles, median of the preset's training scenes) and a rollout 10x the training horizon. Each runs
-the MPM solver, then the model from the MPM's first ``H + 1`` frames twice: ``raw`` (the model alone,
-``constrain=False``) and ``held`` (the default rollout, held by :class:`gnsx.model.boundary.Boundary`).
+the MPM solver, then the network from the MPM's first ``H + 1`` frames: ``no_walls`` (the network alone,
+``constrain=False``: not even the walls hold it) and ``raw`` (the raw network of every other figure: held by
+the scene's walls and ramps, :class:`gnsx.model.boundary.Boundary`, no rule); with ``--rules production``
+also ``with_rules`` (the production rules of :mod:`gnsx.rules` on top, labelled as such).
 
-Per case and variant (``report.json`` / ``report.md``, one strip per case, MPM | raw | held):
+Per case and variant (``report.json`` / ``report.md``, one strip per case, MPM | no walls | raw [| with rules]):
 
 ================  ===========================================================================================
 column            meaning
@@ -52,14 +54,19 @@ from gnsx.data.metadata import Metadata
 from gnsx.evaluation.health import rollout_health
 from gnsx.evaluation.metrics import area_ratio
 from gnsx.evaluation.scoring import json_ready
-from gnsx.model.rollout import rollout
-from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.presets import Preset, get_preset
 from gnsx.mpm.scenes import Scene, ramp_particles
+from gnsx.rules.rollout import rollout_with_rules
+from gnsx.rules.rules import Rules
 
-#: Variants of the model's rollout: the raw model, and the one held by the scene's boundary (the default).
-VARIANTS = ("raw", "held")
+#: Variants of the network's rollout: without the walls, and the raw network held by the scene's walls and
+#: ramps (every figure's default); ``with_rules`` joins them when the suite runs with rules.
+VARIANTS = ("no_walls", "raw")
+WITH_RULES = "with_rules"
+#: The strips' titles per variant.
+TITLES = {"no_walls": "network, no walls", "raw": "network, raw (walls and ramps)",
+          WITH_RULES: "network with the production rules"}  # fmt: skip
 #: Drift is measured over this many frames at the end of a rollout.
 DRIFT_FRAMES = 100
 #: Issue 11's target for water at rest: drift under this many cm per 100 frames (the MPM's pool: 0.03).
@@ -194,7 +201,7 @@ def rest_drift(
     ``gnsx.training.export`` checks it before shipping a checkpoint. NaN positions give ``inf``."""
     simulator, initial, types = _cpu_case(simulator, "pool_rest")
     rules = dataclasses.replace(Rules.production(), level_pool=False) if rules is None else rules
-    positions = rollout(simulator, initial, types, frames, rules=rules).double().numpy()
+    positions = rollout_with_rules(simulator, initial, types, frames, rules).double().numpy()
     if not np.isfinite(positions).all():
         return math.inf
     return 100 * drift(positions, (types != KINEMATIC_PARTICLE_ID).numpy())
@@ -213,12 +220,8 @@ def dam_break_speeds(simulator: LearnedSimulator, frames: int = DAM_FRAMES) -> t
     speeds = []
     for held in (True, False):
         positions = (
-            rollout(
-                simulator,
-                initial,
-                types,
-                frames,
-                rules=dataclasses.replace(Rules.production(), hold_rest=held),
+            rollout_with_rules(
+                simulator, initial, types, frames, dataclasses.replace(Rules.production(), hold_rest=held)
             )
             .double()
             .numpy()
@@ -278,14 +281,19 @@ def dam_breaks(held: float, free: float) -> bool:
 
 @torch.inference_mode()
 def model_rollout(
-    simulator: LearnedSimulator, truth: np.ndarray, particle_type: np.ndarray, constrain: bool
+    simulator: LearnedSimulator,
+    truth: np.ndarray,
+    particle_type: np.ndarray,
+    constrain: bool,
+    rules: Rules | None = None,
 ) -> np.ndarray:
-    """The model from the truth's first ``H + 1`` frames to its last: ``[T, N, 2]`` (inputs included)."""
+    """The network from the truth's first ``H + 1`` frames to its last: ``[T, N, 2]`` (inputs included);
+    ``constrain``: held by the walls and ramps; ``rules``: the rules on top (None: none)."""
     frames = simulator.input_frames
     dtype = simulator.acc_std.dtype
     initial = torch.from_numpy(np.ascontiguousarray(truth[:frames])).to(dtype).transpose(0, 1)
     types = torch.from_numpy(particle_type)
-    predicted = rollout(simulator, initial, types, len(truth) - frames, constrain=constrain)
+    predicted = rollout_with_rules(simulator, initial, types, len(truth) - frames, rules, constrain=constrain)
     return np.concatenate([truth[:frames].astype(np.float64), predicted.double().numpy()])
 
 
@@ -345,10 +353,11 @@ def run_suite(
     frames_scale: float = 1.0,
     strips: bool = True,
     progress: bool = True,
+    rules: Rules | None = None,
 ) -> dict:
-    """Run every case (MPM, raw and held model rollouts) and write ``report.json``, ``report.md`` and one
-    strip per case into ``out_dir`` (when given). Returns the report: ``{"cases": [row, ...], "precision":
-    ...}``, one row per case and variant."""
+    """Run every case (MPM, the network without walls and raw, and with ``rules`` when any is on) and write
+    ``report.json``, ``report.md`` and one strip per case into ``out_dir`` (when given). Returns the report:
+    ``{"cases": [row, ...], "precision": ..., "rules": ...}``, one row per case and variant."""
     preset = preset or get_preset("small")
     simulator = simulator.cpu().eval()
     metadata = _metadata(simulator, preset)
@@ -360,7 +369,9 @@ def run_suite(
         start = time.perf_counter()
         scaled = replace(case, frames_factor=case.frames_factor * frames_scale)
         truth, types = ground_truth(scaled, preset)
-        rollouts = {v: model_rollout(simulator, truth, types, constrain=v == "held") for v in VARIANTS}
+        rollouts = {v: model_rollout(simulator, truth, types, constrain=v == "raw") for v in VARIANTS}
+        if rules is not None and rules.any():
+            rollouts[WITH_RULES] = model_rollout(simulator, truth, types, constrain=True, rules=rules)
         frames = simulator.input_frames
         truth_health = rollout_health(truth, types, metadata, first_frame=frames)
         for variant, predicted in rollouts.items():
@@ -377,7 +388,8 @@ def run_suite(
                 f"{time.perf_counter() - start:5.1f} s",
                 file=sys.stderr,
             )
-    report = {"cases": rows, "precision": precision(simulator, preset, frames_scale)}
+    report = {"cases": rows, "precision": precision(simulator, preset, frames_scale),
+              "rules": (rules or Rules.none()).to_dict()}  # fmt: skip
     if out is not None:
         (out / "report.json").write_text(json.dumps(json_ready(report), indent=2))
         (out / "report.md").write_text(format_report(report))
@@ -397,7 +409,7 @@ def _strip(path: Path, truth, rollouts: dict, types, preset: Preset) -> None:
     panels = [truth.astype(np.float32)] + [r.astype(np.float32) for r in rollouts.values()]
     panels = [np.nan_to_num(p, nan=-1.0, posinf=-1.0, neginf=-1.0) for p in panels]  # off-screen
     every = max(len(truth) // 5, 1)
-    titles = ["MPM ground truth", "model, raw", "model, held (rules + walls)"]
+    titles = ["MPM ground truth"] + [TITLES[variant] for variant in rollouts]
     bounds = np.array([preset.bounds, preset.bounds], dtype=np.float64)
     save_strip(panels, types, bounds, path, titles, every=every, count=6)
 
@@ -431,7 +443,7 @@ def format_report(report: dict) -> str:
     p = report.get("precision")
     if p:
         rms = ", ".join(f"frame {f}: {v:.2e} m" for f, v in p["rms_m"].items())
-        lines += ["", f"float32 vs float64 ({p['case']}, held): RMS distance of the water {rms}."]
+        lines += ["", f"float32 vs float64 ({p['case']}, raw): RMS distance of the water {rms}."]
     return "\n".join(lines) + "\n"
 
 
@@ -445,6 +457,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="outputs/hardcases", help="report folder (created)")
     parser.add_argument("--cases", nargs="*", help=f"subset of {[c.name for c in CASES]}")
     parser.add_argument("--frames-scale", type=float, default=1.0, help="scale every rollout's length")
+    parser.add_argument(
+        "--rules", choices=("none", "production"), default="none",
+        help="production: also roll out with the production rules (gnsx.rules), a labelled third variant",
+    )  # fmt: skip
     parser.add_argument(
         "--threads",
         type=int,
@@ -466,7 +482,8 @@ def main(argv: list[str] | None = None) -> int:
         checkpoint = checkpoint / "model.ckpt"
     simulator = load_simulator(checkpoint)
     cases = tuple(names[n] for n in args.cases) if args.cases else CASES
-    report = run_suite(simulator, cases, out_dir=args.out, frames_scale=args.frames_scale)
+    rules = Rules.production() if args.rules == "production" else None
+    report = run_suite(simulator, cases, out_dir=args.out, frames_scale=args.frames_scale, rules=rules)
     print(format_report(report))
     print(f"report: {Path(args.out) / 'report.md'}", file=sys.stderr)
     return 0

@@ -35,12 +35,12 @@ import yaml
 from gnsx.core.errors import DataError
 from gnsx.data.metadata import Metadata
 from gnsx.evaluation.health import rollout_health, warn_if_unhealthy
-from gnsx.model.rollout import rollout
-from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.mpm.generate import check_scene, initial_state
 from gnsx.mpm.presets import Preset
 from gnsx.mpm.scenes import Scene
+from gnsx.rules.rollout import rollout_with_rules
+from gnsx.rules.rules import Rules
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -139,7 +139,7 @@ def rollout_scene(
         ground_truth: also simulate the scene with the MPM solver and start the model from its first frames.
         constrain: hold the rollout by the scene's walls and ramps (:class:`gnsx.model.boundary.Boundary`);
             ``False``: the raw model.
-        rules: the simulator's rules on the rollout (:class:`gnsx.model.rules.Rules`; None: none, the raw
+        rules: the simulator's rules on the rollout (:class:`gnsx.rules.rules.Rules`; None: none, the raw
             network held by the walls and ramps).
     """
     check_scene(scene, preset)
@@ -164,7 +164,7 @@ def rollout_scene(
     types = torch.from_numpy(particle_type).to(device)
     steps = num_frames - frames
     predicted = (
-        rollout(simulator, window, types, steps, progress=progress, constrain=constrain, rules=rules)
+        rollout_with_rules(simulator, window, types, steps, rules, progress=progress, constrain=constrain)
         .cpu()
         .numpy()
     )

@@ -104,8 +104,9 @@ from gnsx.evaluation.spread import (
 )
 from gnsx.evaluation.timing import measure_inference
 from gnsx.model.rollout import physics_free_baseline, rollout
-from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
+from gnsx.rules.rollout import rollout_with_rules
+from gnsx.rules.rules import Rules
 
 #: Gravity of WaterRamps-like data (m/s^2, along -y); the baseline moves particles by g*dt^2 per frame^2.
 GRAVITY = 9.8
@@ -372,7 +373,7 @@ def score_trajectory(
         constrain: hold the model's rollout by the walls and ramps (:class:`gnsx.model.boundary.Boundary`)
             and the ``rules``; ``False`` scores the raw model. The baseline is always held by the boundary.
         rules: with ``constrain``, the simulator's rules on the model's rollout
-            (:class:`gnsx.model.rules.Rules`; ``None``: all of them).
+            (:class:`gnsx.rules.rules.Rules`; ``None``: none of them).
     """
     device = simulator.acc_std.device
     position = position.to(device=device, dtype=torch.float32)
@@ -395,14 +396,7 @@ def score_trajectory(
         torch.cat(
             [
                 position[:frames],
-                rollout(
-                    simulator,
-                    initial,
-                    particle_type,
-                    steps,
-                    constrain=constrain,
-                    rules=rules,
-                ),
+                rollout_with_rules(simulator, initial, particle_type, steps, rules, constrain=constrain),
             ]
         )
         .cpu()

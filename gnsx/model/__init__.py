@@ -2,8 +2,9 @@
 
 The paper's simplified GNS and DeepMind's original GNS are two configurations of :class:`LearnedSimulator`
 (see :mod:`gnsx.model.simulator` for the table of arguments; :mod:`gnsx.model.registry` names them).
-:func:`rollout` is the one rollout loop every tool uses; the walls and ramps (:mod:`~gnsx.model.boundary`)
-and the opt-in rules after the network (:mod:`~gnsx.model.rules`) act inside it.
+:func:`rollout` is the one rollout loop every tool uses; the walls and ramps (:mod:`~gnsx.model.boundary`) act
+inside it, and the layer above, the simulator's opt-in rules (:mod:`gnsx.rules`), plugs into it through its
+``constraints`` and ``predict`` arguments; the model never imports the rules.
 :mod:`gnsx.model.checkpoint` reads a trained simulator back from a Lightning checkpoint file without Lightning.
 """
 

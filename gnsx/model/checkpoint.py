@@ -31,7 +31,12 @@ SIMULATOR_FACTS = ("dim", "bounds", "radius", "vel_mean", "vel_std", "acc_mean",
 #: Lightning saves the training module's weights; the simulator is its submodule ``simulator``.
 SIMULATOR_PREFIX = "simulator."
 
-RUNTIME_KEYS = frozenset({"neighbor_search", "cull", "freeze_speed", "compile"})
+RUNTIME_KEYS = frozenset({"neighbor_search", "cull", "compile"})
+#: Model settings that older checkpoints may hold but the model no longer takes: dropped when one is read.
+#: ``freeze_speed`` (approximate freezing, a run-time switch of the model until 2026-12-07) is now a rule of
+#: the rollout (:mod:`gnsx.rules.freezing`), chosen where a rollout is run; an old checkpoint's value (always
+#: None in the shipped and trained configs) is not carried over.
+RETIRED_KEYS = frozenset({"freeze_speed"})
 #: The checkpoint keys gnsx needs.
 REQUIRED_KEYS = ("state_dict", "hyper_parameters")
 #: A model applied to data whose connectivity radius differs by more than this factor is refused.
@@ -125,14 +130,15 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 def describe_model(model: Mapping[str, Any]) -> str:
     """``"latent_size=64, mp_steps=5, ..."``: a model config (weights-relevant keys only)."""
-    return ", ".join(f"{key}={_plain(value)}" for key, value in model.items() if key not in RUNTIME_KEYS)
+    skip = RUNTIME_KEYS | RETIRED_KEYS
+    return ", ".join(f"{key}={_plain(value)}" for key, value in model.items() if key not in skip)
 
 
 def model_differences(trained: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
     """``["latent_size: 64 (checkpoint) vs 128", ...]`` for keys both configs set, run-time keys ignored."""
     out = []
     for key in trained:
-        if key in RUNTIME_KEYS or key not in expected:
+        if key in RUNTIME_KEYS or key in RETIRED_KEYS or key not in expected:
             continue
         a, b = _plain(trained[key]), _plain(expected[key])
         if a != b:
@@ -144,7 +150,7 @@ def check_resume(path: str | Path, model: Mapping[str, Any], dim: int, radius: f
     """Read the checkpoint a run resumes from; refuse one of another model config.
 
     Args:
-        model: this run's architecture (:func:`gnsx.training.pipeline.architecture`).
+        model: this run's architecture (:func:`gnsx.training.model_settings.architecture`).
         dim, radius: this run's data dimension and connectivity radius.
         name: the override that named the checkpoint (``train.ckpt_path``, ``train.init_weights``).
     Returns:
@@ -209,11 +215,14 @@ def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Lear
 def simulator_from_hparams(hparams: Mapping[str, Any]) -> LearnedSimulator:
     """The untrained :class:`LearnedSimulator` that a checkpoint's hyper-parameters describe: the dataset facts
     (:data:`SIMULATOR_FACTS`) plus the architecture (``hparams["model"]``), as the training module builds it.
+    Keys of :data:`RETIRED_KEYS` are dropped (old checkpoints). ``data_radius``, which the rules read
+    (:func:`gnsx.rules.scale.rules_radius`), stays: it is a fact of the data the model records.
 
     Raises:
         KeyError: a fact is missing; TypeError, ValueError: the arguments do not build a model.
     """
-    return LearnedSimulator(**{key: hparams[key] for key in SIMULATOR_FACTS}, **hparams["model"])
+    model = {key: value for key, value in hparams["model"].items() if key not in RETIRED_KEYS}
+    return LearnedSimulator(**{key: hparams[key] for key in SIMULATOR_FACTS}, **model)
 
 
 def check_fits(

@@ -158,7 +158,7 @@ def particles_in_reach(
     particle is kept when its cell or one of the ``3^D - 1`` around it holds a source. Every particle within
     ``reach`` of a source is kept (and some up to ~2 sqrt(D) reach away): a superset, so culling with it is
     exact. With any NaN/Inf position every particle is kept, so a diverged rollout still fails in the
-    neighbour search, where :mod:`gnsx.training.pipeline` reports it.
+    neighbour search, where :mod:`gnsx.training.run` reports it.
 
     Args:
         position: ``[N, D]`` (data units).

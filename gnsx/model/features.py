@@ -95,3 +95,20 @@ def edge_features(position: Tensor, edge_index: Tensor, radius: float) -> Tensor
     displacement = (position.index_select(0, senders) - position.index_select(0, receivers)) / radius
     distance = torch.linalg.vector_norm(displacement, dim=1, keepdim=True)
     return torch.cat([displacement, distance], dim=1)
+
+
+def wall_contact_gate(position: Tensor, bounds: Tensor, radius: float) -> Tensor:
+    """``[N, 1]`` weight of the pairwise model's wall force: 1 within one radius of the nearest wall, 0 beyond
+    two, linear between (continuous, so a particle's acceleration does not jump as it crosses the band).
+
+    Two radii: the MPM solver's walls act through its grid (a quadratic B-spline spans 1.5 cells, ~1.3 R on
+    the small preset), and beyond that water feels a wall only through the water in between, which the pair
+    forces carry.
+
+    Args:
+        position: ``[N, D]`` most recent positions (data units).
+        bounds: ``[D, 2]``.
+        radius: R (data units).
+    """
+    nearest = torch.minimum(position - bounds[:, 0], bounds[:, 1] - position).amin(dim=1, keepdim=True)
+    return (2.0 - nearest / radius).clamp(0.0, 1.0)

@@ -2,16 +2,18 @@
 
 Both apply the same :class:`gnsx.model.boundary.Boundary` to every step (box walls, static segments), so a
 rollout never leaves the box or tunnels through a ramp, and the model is scored against a baseline held to the
-same walls. The model's rollout also gets the simulator's rules (:class:`gnsx.model.rules.Rules`, all on by
-default): free flight (:class:`gnsx.model.freeflight.FreeFlight`: a free rigid cluster of water falls at g),
-the rest hold (:class:`gnsx.model.rest.RestHold`: water at rest stays at rest) and the density limit
-(:class:`gnsx.model.density.DensityLimit`: water does not compress). The baseline gets none of them: with
-them, constant velocity plus gravity would be a position-based fluid solver, not physics-free.
-``constrain=False`` gives the raw model (what it would do on its own)."""
+same walls. ``constrain=False`` gives the raw model (what it would do on its own).
+
+:func:`rollout` is the one rollout loop of gnsx. Two optional arguments let a layer above change a step
+without a loop of its own: ``predict`` replaces the model's step (:data:`Predict`), and ``constraints``
+correct its prediction before the boundary (:data:`Constraint`). The model layer defines neither; the
+simulator's hand-written rules (:mod:`gnsx.rules`: free flight, the rest hold, the density limit, and the
+approximate freezing of water at rest) come in through them. The baseline gets no constraints: with them,
+constant velocity plus gravity would be a position-based fluid solver, not physics-free."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -19,11 +21,18 @@ from tqdm import tqdm
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.model.boundary import Boundary
-from gnsx.model.density import DensityLimit
-from gnsx.model.freeflight import FreeFlight
-from gnsx.model.rest import LEVEL, RestHold
-from gnsx.model.rules import Rules
 from gnsx.model.simulator import LearnedSimulator
+
+#: The model's step: ``predict(window, particle_type) -> next_position``, with ``window`` ``[N, F, D]`` the
+#: input frames (oldest first), ``particle_type`` ``[N]`` int64 and ``next_position`` ``[N, D]`` (data units);
+#: static particles keep their most recent position. Default: :meth:`LearnedSimulator.predict_positions`.
+Predict = Callable[[Tensor, Tensor], Tensor]
+#: A correction of one step's prediction: ``constraint(window, next_position, moves) -> (next_position,
+#: moves)``. ``window`` ``[N, F, D]`` is the step's input, ``next_position`` ``[N, D]`` the positions so far
+#: (the model's, corrected by the constraints before this one), ``moves`` ``[N]`` bool the particles this
+#: constraint may move (the dynamic ones, less those an earlier constraint has taken over). It returns the
+#: corrected positions and the particles the constraints after it may move.
+Constraint = Callable[[Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
 
 
 @torch.inference_mode()
@@ -35,9 +44,13 @@ def rollout(
     static_positions: Tensor | None = None,
     progress: bool = False,
     constrain: bool = True,
-    rules: Rules | None = None,
+    constraints: Sequence[Constraint] = (),
+    predict: Predict | None = None,
 ) -> Tensor:
     """Predict ``num_steps`` frames by feeding each prediction back as input.
+
+    Each step: the model's next positions (``predict``), the static particles' given positions, the
+    ``constraints`` in order, and last the :class:`Boundary`.
 
     Args:
         simulator: the model (its mode is not changed; it has no dropout or batch norm).
@@ -49,13 +62,14 @@ def rollout(
             the rows of static particles are read. ``None``: static particles stay at their last input
             position.
         progress: show a tqdm progress bar.
-        constrain: apply the scene's :class:`Boundary` (the model's box, segments between the static
-            particles of the last input frame) and the ``rules`` to every predicted frame; ``False``: the raw
-            model.
-        rules: with ``constrain``, which of the simulator's rules apply before the boundary, in this order:
-            free flight (:class:`FreeFlight`: a free rigid cluster falls at g; the rules after it leave its
-            particles alone), the rest hold (:class:`RestHold`), the density limit (:class:`DensityLimit`).
-            ``None``: none of them (:class:`Rules`' defaults: the raw network held by the walls and ramps).
+        constrain: apply the ``constraints`` and the scene's :class:`Boundary` (the model's box, segments
+            between the static particles of the last input frame) to every predicted frame; ``False``: the
+            raw model.
+        constraints: with ``constrain``, corrections of each step's prediction before the boundary
+            (:data:`Constraint`; :func:`gnsx.rules.rollout.constraints` builds the simulator's rules). Empty
+            (default): the network held by the walls and ramps alone.
+        predict: the model's step (:data:`Predict`); ``None``: ``simulator.predict_positions``. Applies with
+            or without ``constrain`` (e.g. :class:`gnsx.rules.freezing.Freezing`'s step).
 
     Returns:
         ``[num_steps, N, D]`` predicted positions of frames ``history + 1 ... history + num_steps``.
@@ -77,30 +91,17 @@ def rollout(
     boundary = None
     if constrain:
         boundary = Boundary.from_particles(simulator.bounds.cpu(), initial_positions[:, -1], particle_type)
-    rules = (rules or Rules()) if constrain else Rules.none()
-    limit = None
-    if rules.incompressible:
-        radius = float(simulator.rules_radius)
-        limit = DensityLimit.from_particles(initial_positions[:, 0], particle_type, radius)
-    rest = None
-    if rules.hold_rest:
-        rest = RestHold.for_simulator(simulator, level=LEVEL if rules.level_pool else None)
-    flight = FreeFlight.for_simulator(simulator) if rules.free_flight else None
+    constraints = tuple(constraints) if constrain else ()
+    predict = simulator.predict_positions if predict is None else predict
     window = initial_positions
     predictions = []
     for step in tqdm(range(num_steps), desc="rollout", disable=not progress):
-        next_position = simulator.predict_positions(window, particle_type)  # static held at window[:, -1]
+        next_position = predict(window, particle_type)  # static held at window[:, -1]
         if static_positions is not None:
             next_position = torch.where(static, static_positions[step], next_position)
-        moves = dynamic  # the particles the rules below may move
-        if flight is not None:
-            next_position, free = flight.apply(window, next_position, particle_type)
-            moves = dynamic & ~free
-        if rest is not None:
-            next_position = rest.apply(window, next_position, moves, static[:, 0])
-        if limit is not None:
-            allowed = limit.allowed_density(window[:, -1], dynamic)  # no water pushed below its last density
-            next_position = limit.apply(next_position, moves, allowed)
+        moves = dynamic
+        for constraint in constraints:
+            next_position, moves = constraint(window, next_position, moves)
         if boundary is not None:
             next_position = boundary.apply(window[:, -1], next_position, dynamic)
         predictions.append(next_position)

@@ -17,17 +17,16 @@ edge_residual       False        True
 self_edges          False        True (DeepMind's radius graph keeps i == j)
 ==================  ===========  ===========================================================
 
-Two switches change what is computed, not the model (they are not architecture; changing them on a trained
-model needs no retraining):
+One switch changes what is computed, not the model (it is not architecture; changing it on a trained model
+needs no retraining):
 
 * ``cull`` (default on): exact culling (:mod:`gnsx.model.culling`). Only dynamic particles are decoded, and
   only the particles and edges their prediction depends on are computed, step by step. Their predictions
   are those of the full graph up to float rounding; static rows of :meth:`forward` are 0 instead of the
   (unused) values the decoder would give them. Exact for training too: the loss counts dynamic particles only.
-* ``freeze_speed`` (default None, off; approximate, opt-in): in :meth:`predict_positions`, a dynamic
-  particle at rest (every velocity of its window at most ``freeze_speed``, data units per frame) with no
-  moving particle within :attr:`~LearnedSimulator.hops` hops is held like a static one until something
-  that near moves.
+
+(Approximate freezing of water at rest, which changes the results, is a rule of the layer above:
+:mod:`gnsx.rules.freezing`, through :meth:`LearnedSimulator.predict_positions`' ``held``.)
 
 The decoder is a third choice (``decoder``, architecture: it needs its own training):
 
@@ -37,7 +36,8 @@ The decoder is a third choice (``decoder``, architecture: it needs its own train
   by ``acc_std``): antisymmetric pair forces ``f_ij = -f_ji`` from the edges into i
   (:class:`~gnsx.model.graph_network.PairwiseDecoder`), so interactions between water particles conserve
   momentum and a cluster in free flight falls exactly at ``gravity``; plus a per-particle wall force ``w_i``
-  (the node decoder) switched on only within two radii of a wall (``gate_i``, :func:`wall_contact_gate`).
+  (the node decoder) switched on only within two radii of a wall (``gate_i``,
+  :func:`gnsx.model.features.wall_contact_gate`).
   Static particles (ramps) exert pair forces too and are not pushed back: the ramp is an external body.
 
 Time unit: one frame (dt = 1). Velocities and accelerations are per-frame differences of positions, the
@@ -52,37 +52,19 @@ import torch
 from torch import Tensor, nn
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
-from gnsx.model.culling import hop_distance, particles_in_reach
+from gnsx.model.culling import particles_in_reach
 from gnsx.model.features import (
     edge_features,
     type_scalar_feature,
     velocity_features,
-    velocity_sequence,
+    wall_contact_gate,
     wall_features,
 )
 from gnsx.model.graph_network import DECODERS, EncodeProcessDecode
 from gnsx.model.neighbors import METHODS, radius_graph
-from gnsx.model.noise import random_walk_noise
 from gnsx.model.padding import needs_padding
 
 TYPE_ENCODINGS = ("scalar", "embedding")
-
-
-def wall_contact_gate(position: Tensor, bounds: Tensor, radius: float) -> Tensor:
-    """``[N, 1]`` weight of the pairwise model's wall force: 1 within one radius of the nearest wall, 0 beyond
-    two, linear between (continuous, so a particle's acceleration does not jump as it crosses the band).
-
-    Two radii: the MPM solver's walls act through its grid (a quadratic B-spline spans 1.5 cells, ~1.3 R on
-    the small preset), and beyond that water feels a wall only through the water in between, which the pair
-    forces carry.
-
-    Args:
-        position: ``[N, D]`` most recent positions (data units).
-        bounds: ``[D, 2]``.
-        radius: R (data units).
-    """
-    nearest = torch.minimum(position - bounds[:, 0], bounds[:, 1] - position).amin(dim=1, keepdim=True)
-    return (2.0 - nearest / radius).clamp(0.0, 1.0)
 
 
 class LearnedSimulator(nn.Module):
@@ -104,8 +86,6 @@ class LearnedSimulator(nn.Module):
         self_edges: connect every particle to itself in the radius graph.
         neighbor_search: ``"auto"``, ``"kdtree"`` or ``"cell"`` (see :func:`radius_graph`).
         cull: exact culling (module docstring); also settable on the model (``simulator.cull = False``).
-        freeze_speed: approximate freezing of particles at rest (module docstring, :meth:`frozen_particles`);
-            None (off) or a speed > 0 in data units per frame; also settable on the model.
         decoder: ``"node"`` or ``"pairwise"`` (module docstring).
         gravity: ``[D]`` acceleration per frame^2 (data units) that the pairwise decoder adds to its forces
             (:func:`gnsx.evaluation.scoring.gravity_per_frame`); None: ``acc_mean`` (what the node decoder's zero output
@@ -113,9 +93,11 @@ class LearnedSimulator(nn.Module):
         compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
             C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes
             speed only, not the results (to float rounding) nor the parameters; docs/speed.md has figures.
-        data_radius: the dataset's connectivity radius (data units), the length scale of the rollout's rules
-            (:attr:`rules_radius`); None: ``radius``. Not part of the network: it matters only when the
-            model's radius differs from the data's (``model.radius=0.05``).
+        data_radius: the dataset's connectivity radius (data units), recorded with the data's other
+            statistics; None: not recorded (checkpoints before it, which all used the data's radius). Not
+            part of the network: the layer above reads it as the data's length scale
+            (:func:`gnsx.rules.scale.rules_radius`), which differs from ``radius`` only when the model's graph
+            has a radius of its own (``model.radius=0.05``).
 
     Attributes:
         input_frames: ``history + 1``, the number of position frames :meth:`forward` reads.
@@ -146,7 +128,6 @@ class LearnedSimulator(nn.Module):
         self_edges: bool = False,
         neighbor_search: str = "auto",
         cull: bool = True,
-        freeze_speed: float | None = None,
         decoder: str = "node",
         gravity: Sequence[float] | None = None,
         compile: bool = False,
@@ -174,7 +155,6 @@ class LearnedSimulator(nn.Module):
             "self_edges": bool(self_edges),
             "neighbor_search": str(neighbor_search),
             "cull": bool(cull),
-            "freeze_speed": None if freeze_speed is None else float(freeze_speed),
             "decoder": str(decoder),
             "gravity": None if gravity is None else [float(v) for v in gravity],
             "compile": bool(compile),
@@ -250,8 +230,6 @@ class LearnedSimulator(nn.Module):
             )
         if len(cfg["wall_clip"]) != 2 or cfg["wall_clip"][0] > cfg["wall_clip"][1]:
             raise ValueError(f"LearnedSimulator: wall_clip must be (low, high), got {cfg['wall_clip']}")
-        if cfg["freeze_speed"] is not None and not cfg["freeze_speed"] > 0:
-            raise ValueError(f"LearnedSimulator: freeze_speed must be None or > 0, got {cfg['freeze_speed']}")
         if cfg["decoder"] not in DECODERS:
             raise ValueError(f"LearnedSimulator: decoder must be one of {DECODERS}, got {cfg['decoder']!r}")
         if cfg["gravity"] is not None and len(cfg["gravity"]) != dim:
@@ -261,7 +239,7 @@ class LearnedSimulator(nn.Module):
                 f"LearnedSimulator: neighbor_search must be one of {METHODS}, got {cfg['neighbor_search']!r}"
             )
 
-    # The switches live in ``config`` so that ``LearnedSimulator(**config)`` rebuilds the model as it runs.
+    # The switch lives in ``config`` so that ``LearnedSimulator(**config)`` rebuilds the model as it runs.
     @property
     def cull(self) -> bool:
         """Exact culling on (see the module docstring)."""
@@ -272,29 +250,9 @@ class LearnedSimulator(nn.Module):
         self.config["cull"] = bool(value)
 
     @property
-    def freeze_speed(self) -> float | None:
-        """Speed (data units per frame) at or below which a particle counts as at rest; None: no freezing."""
-        return self.config["freeze_speed"]
-
-    @freeze_speed.setter
-    def freeze_speed(self, value: float | None) -> None:
-        if value is not None and not value > 0:
-            raise ValueError(f"freeze_speed must be None or > 0, got {value}")
-        self.config["freeze_speed"] = None if value is None else float(value)
-
-    @property
     def hops(self) -> int:
         """Graph hops that can change a prediction: ``mp_steps``, plus one for the pairwise decoder."""
         return self.network.hops
-
-    @property
-    def rules_radius(self) -> float:
-        """Length scale of the rollout's rules (free flight's reach, the rest hold's neighbourhood, the
-        density kernel), data units: the dataset's connectivity radius, which measures the data's physics (its
-        particle spacing and the MPM grid's reach), whatever radius the model's graph uses; the model's radius
-        for checkpoints saved before it was recorded (they all used the dataset's)."""
-        data_radius = self.config["data_radius"]
-        return self.radius if data_radius is None else data_radius
 
     @property
     def reach(self) -> float:
@@ -430,54 +388,30 @@ class LearnedSimulator(nn.Module):
         return most_recent_position + (velocity + acceleration)
 
     def predict_positions(
-        self, position_sequence: Tensor, particle_type: Tensor, batch: Tensor | None = None
-    ) -> Tensor:
-        """Next positions ``[N, D]``; static (kinematic) particles keep their most recent position, and so do
-        frozen ones (:meth:`frozen_particles`, when :attr:`freeze_speed` is set). Only the others are decoded
-        (with :attr:`cull`) and integrated."""
-        moving = particle_type != KINEMATIC_PARTICLE_ID  # [N]
-        graph = None
-        if self.freeze_speed is not None:  # the freeze test needs the whole graph: build it once for both
-            graph = self.build_graph(position_sequence, particle_type, batch)
-            moving = moving & ~self.frozen_particles(position_sequence, particle_type, edge_index=graph[1])
-        acceleration = self._accelerations(position_sequence, particle_type, batch, moving, graph)
-        index = torch.nonzero(moving).squeeze(1)
-        moved = self.integrate(acceleration.index_select(0, index), position_sequence.index_select(0, index))
-        return position_sequence[:, -1].index_copy(0, index, moved)
-
-    def frozen_particles(
         self,
         position_sequence: Tensor,
         particle_type: Tensor,
         batch: Tensor | None = None,
-        edge_index: Tensor | None = None,
+        held: Tensor | None = None,
+        graph: tuple[Tensor, Tensor, Tensor] | None = None,
     ) -> Tensor:
-        """Dynamic particles at rest in a resting neighbourhood (approximate freezing), ``[N]`` bool.
-
-        At rest: every velocity of the window (per-frame position differences) at most :attr:`freeze_speed`
-        long. Resting neighbourhood: no moving (not at rest) dynamic particle within :attr:`hops` hops in the
-        radius graph, the model's receptive field. The approximation: the frozen particle's own predicted
-        motion, small while its neighbourhood rests, is dropped. A frozen particle is held, so its velocity
-        becomes 0 and it stays frozen until a moving particle comes within that many hops; measured error and
-        its failure case (a block frozen at the top of its arc) in ``docs/culling.md``.
+        """Next positions ``[N, D]``; static (kinematic) particles keep their most recent position. Only the
+        others are decoded (with :attr:`cull`) and integrated.
 
         Args:
             position_sequence, particle_type, batch: as :meth:`forward`.
-            edge_index: the radius graph ``[2, E]`` of the most recent positions when already built.
-        Returns:
-            ``[N]`` bool; all False when :attr:`freeze_speed` is None.
+            held: ``[N]`` bool, dynamic particles to keep at their most recent position like static ones (not
+                decoded); ``None``: none. The layer above's approximate freezing sets it
+                (:class:`gnsx.rules.freezing.Freezing`).
+            graph: :meth:`build_graph`'s output for these inputs when the caller has built it already.
         """
-        dynamic = particle_type != KINEMATIC_PARTICLE_ID
-        if self.freeze_speed is None:
-            return torch.zeros_like(dynamic)
-        if edge_index is None:
-            edge_index = radius_graph(
-                position_sequence[:, -1], self.radius, batch, method=self.neighbor_search
-            )
-        speed = velocity_sequence(position_sequence).norm(dim=-1).amax(dim=1)  # [N]
-        resting = dynamic & (speed <= self.freeze_speed)
-        steps = self.hops
-        return resting & (hop_distance(edge_index, dynamic & ~resting, steps) > steps)
+        moving = particle_type != KINEMATIC_PARTICLE_ID  # [N]
+        if held is not None:
+            moving = moving & ~held
+        acceleration = self._accelerations(position_sequence, particle_type, batch, moving, graph)
+        index = torch.nonzero(moving).squeeze(1)
+        moved = self.integrate(acceleration.index_select(0, index), position_sequence.index_select(0, index))
+        return position_sequence[:, -1].index_copy(0, index, moved)
 
     def normalized_target(self, next_position: Tensor, position_sequence: Tensor) -> Tensor:
         """Normalised acceleration ``[N, D]`` that moves ``position_sequence`` to ``next_position``.
@@ -491,138 +425,3 @@ class LearnedSimulator(nn.Module):
         next_velocity = next_position - most_recent_position
         acceleration = next_velocity - previous_velocity
         return (acceleration - self.acc_mean) / self.acc_std
-
-    def noisy_training_pair(
-        self,
-        position_sequence: Tensor,
-        next_position: Tensor,
-        particle_type: Tensor,
-        noise_std: float,
-        batch: Tensor | None = None,
-        generator: torch.Generator | None = None,
-        position_correction: float = 0.0,
-        pushforward_steps: int = 0,
-    ) -> tuple[Tensor, Tensor]:
-        """One loss step's ``(predicted, target)``, both ``[N, D]``: :meth:`noisy_training_rollout` with
-        ``unroll_steps = 1`` (DeepMind's training step, with the pushforward trick when asked)."""
-        predicted, target = self.noisy_training_rollout(
-            position_sequence,
-            next_position,
-            particle_type,
-            noise_std,
-            batch,
-            generator=generator,
-            position_correction=position_correction,
-            pushforward_steps=pushforward_steps,
-        )
-        return predicted[0], target[0]
-
-    def noisy_training_rollout(
-        self,
-        position_sequence: Tensor,
-        next_position: Tensor,
-        particle_type: Tensor,
-        noise_std: float,
-        batch: Tensor | None = None,
-        generator: torch.Generator | None = None,
-        position_correction: float = 0.0,
-        pushforward_steps: int = 0,
-        unroll_steps: int = 1,
-    ) -> tuple[Tensor, Tensor]:
-        """Predictions and targets of the loss steps on noise-corrupted inputs (DeepMind's training step,
-        generalised to a short rollout).
-
-        The input gets :func:`random_walk_noise`; the target next position is shifted by ``1 -
-        position_correction`` times the noise of the most recent position. With the default 0 (DeepMind's)
-        the target acceleration undoes the *velocity* noise but the model is not asked to undo the position
-        noise (absolute positions are not among the features): with H = 1, ``a~ = a - eps``. With 1 the
-        target leads back to the true next position, ``a~ = a - 2 eps``: the model is asked to undo a
-        particle's displacement from its neighbours too, which it can see in its edge vectors, and so
-        learns a restoring force against the compression it never sees in the data (a fluid compressed in
-        a rollout otherwise stays compressed).
-
-        With ``pushforward_steps = k > 0`` (the pushforward trick, Brandstetter et al. 2022) the model first
-        rolls itself out ``k`` steps from the noisy oldest ``H + 1`` frames, without gradient, and the loss
-        starts from where it got to: the input's deviation from the truth is then the model's own rollout
-        error instead of a random walk alone, and the target treats it as the noise above (undoes the
-        velocity deviation, keeps ``1 - position_correction`` of the position deviation).
-
-        With ``unroll_steps = S > 1`` the loss runs over ``S`` consecutive model steps *with* the gradient
-        through them: step ``j`` starts from the model's own positions after step ``j - 1`` and is scored
-        against the true frame after it, the deviation treated as the noise above. With
-        ``position_correction = 0`` step ``j``'s error is the error of its predicted next velocity, so the
-        loss is the velocity error along an ``S``-step rollout, and the gradient teaches the model the
-        consequences of its errors on the next steps (what a single step cannot: the one-step loss falls
-        while the rollout's error does not). ``S = 1`` is the single step, identical to before.
-
-        Args:
-            position_sequence: ``[N, history + 1 + k + S - 1, D]`` clean positions, oldest first.
-            next_position: ``[N, D]`` clean position of the frame after the last one.
-            particle_type: ``[N]`` int64 (static particles get no noise).
-            noise_std: std of the noise on the most recent velocity (per frame); 0 disables noise.
-            batch: ``[N]`` graph ids or ``None``.
-            generator: optional torch generator for the noise.
-            position_correction: share of the most recent position deviation the target undoes, in [0, 1].
-            pushforward_steps: ``k``, model steps without gradient before the loss steps.
-            unroll_steps: ``S``, loss steps with the gradient through them.
-
-        Returns:
-            ``(predicted, target)``, both ``[S, N, D]`` normalised accelerations. The loss (masking static
-            particles) is the caller's.
-        """
-        if not 0.0 <= position_correction <= 1.0:
-            raise ValueError(f"position_correction must be in [0, 1], got {position_correction}")
-        if unroll_steps < 1:
-            raise ValueError(f"unroll_steps must be >= 1, got {unroll_steps}")
-        frames = self.history + 1
-        lead = pushforward_steps + unroll_steps - 1
-        if pushforward_steps < 0 or position_sequence.shape[1] != frames + lead:
-            raise ValueError(
-                f"position_sequence has {position_sequence.shape[1]} frames; history {self.history} with "
-                f"pushforward_steps {pushforward_steps} and unroll_steps {unroll_steps} needs {frames + lead}"
-            )
-        # The true frames after the H + 1 inputs: the pushforward's, then each loss step's target.
-        true_frames = torch.cat(
-            [position_sequence, next_position.unsqueeze(1)], dim=1
-        )  # [N, frames+lead+1, D]
-        position_sequence = true_frames[:, :frames]
-        # The most recent input's deviation from the truth: the noise, or where the model got to.
-        deviation = None
-        if noise_std > 0:
-            noise = random_walk_noise(position_sequence, noise_std, particle_type, generator=generator)
-            position_sequence = position_sequence + noise
-            deviation = noise[:, -1]
-        if pushforward_steps > 0:
-            with torch.no_grad():
-                for _ in range(pushforward_steps):
-                    position_sequence = self._advance(position_sequence, particle_type, batch)
-            deviation = position_sequence[:, -1] - true_frames[:, frames - 1 + pushforward_steps]
-        predictions, targets = [], []
-        for step in range(unroll_steps):
-            now = frames - 1 + pushforward_steps + step  # the true frame the inputs' last one stands for
-            if step > 0:
-                deviation = position_sequence[:, -1] - true_frames[:, now]
-            target_position = true_frames[:, now + 1]
-            if deviation is not None:
-                target_position = target_position + (1.0 - position_correction) * deviation
-            predicted = self(position_sequence, particle_type, batch)
-            predictions.append(predicted)
-            targets.append(self.normalized_target(target_position, position_sequence))
-            if step + 1 < unroll_steps:  # the next loss step starts where this prediction moves the particles
-                moved = self._moved(predicted, position_sequence, particle_type)
-                position_sequence = torch.cat([position_sequence[:, 1:], moved.unsqueeze(1)], dim=1)
-        return torch.stack(predictions), torch.stack(targets)
-
-    def _advance(self, position_sequence: Tensor, particle_type: Tensor, batch: Tensor | None) -> Tensor:
-        """The input window ``[N, H + 1, D]`` moved one model step on (:meth:`predict_positions`)."""
-        moved = self.predict_positions(position_sequence, particle_type, batch)
-        return torch.cat([position_sequence[:, 1:], moved.unsqueeze(1)], dim=1)
-
-    def _moved(
-        self, normalized_acceleration: Tensor, position_sequence: Tensor, particle_type: Tensor
-    ) -> Tensor:
-        """Next positions ``[N, D]`` from an already predicted acceleration, static particles held (as
-        :meth:`predict_positions`, keeping the graph of the gradient)."""
-        static = (particle_type == KINEMATIC_PARTICLE_ID)[:, None]
-        moved = self.integrate(normalized_acceleration, position_sequence)
-        return torch.where(static, position_sequence[:, -1], moved)

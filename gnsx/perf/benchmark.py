@@ -38,6 +38,7 @@ from gnsx.model.culling import plan_culling
 from gnsx.model.registry import DEFAULT_MODELS, MODELS, build_model  # noqa: F401 (re-exported for the CLI)
 from gnsx.model.simulator import LearnedSimulator
 from gnsx.perf.scaling import markdown_table
+from gnsx.rules.freezing import Freezing
 
 
 def compare_models(
@@ -185,9 +186,9 @@ def measure_culling(
 ) -> dict:
     """ms/frame of :meth:`LearnedSimulator.predict_positions` with and without culling, interleaved.
 
-    Each repeat times one frame with culling, one without (and one with freezing when ``freeze_speed`` is
-    given), in turn, so that load from other processes hits all modes alike; medians over the repeats. The
-    simulator's switches are restored.
+    Each repeat times one frame with culling, one without (and one with freezing,
+    :class:`gnsx.rules.freezing.Freezing`, when ``freeze_speed`` is given), in turn, so that load from other
+    processes hits all modes alike; medians over the repeats. The simulator's culling switch is restored.
 
     Returns:
         ``particles``, ``static_share``, ``edges`` (full graph), the culling plan's kept fractions
@@ -201,26 +202,28 @@ def measure_culling(
     dynamic = particle_type != KINEMATIC_PARTICLE_ID
     _, edge_index, _ = simulator.build_graph(position_sequence, particle_type)
     work = plan_culling(edge_index, dynamic, simulator.hops).work()
-    switches = (simulator.cull, simulator.freeze_speed)
-    modes = {"cull": (True, None), "full": (False, None)}
-    if freeze_speed is not None:
-        modes["freeze"] = (True, freeze_speed)
+    switch = simulator.cull
+    freezing = None if freeze_speed is None else Freezing(simulator, freeze_speed)
+    # Each mode: culling on or off, and the step it times.
+    modes = {"cull": (True, simulator.predict_positions), "full": (False, simulator.predict_positions)}
+    if freezing is not None:
+        modes["freeze"] = (True, freezing.predict_positions)
     times: dict[str, list[float]] = {mode: [] for mode in modes}
     try:
         for repeat in range(warmup + repeats):
-            for mode, (cull, freeze) in modes.items():
-                simulator.cull, simulator.freeze_speed = cull, freeze
+            for mode, (cull, predict) in modes.items():
+                simulator.cull = cull
                 if device.type == "cuda":
                     torch.cuda.synchronize(device)
                 start = time.perf_counter()
-                simulator.predict_positions(position_sequence, particle_type)
+                predict(position_sequence, particle_type)
                 if device.type == "cuda":
                     torch.cuda.synchronize(device)
                 if repeat >= warmup:
                     times[mode].append(1000 * (time.perf_counter() - start))
-        frozen = simulator.frozen_particles(position_sequence, particle_type) if freeze_speed else None
+        frozen = None if freezing is None else freezing.frozen_particles(position_sequence, particle_type)
     finally:
-        simulator.cull, simulator.freeze_speed = switches
+        simulator.cull = switch
     ms = {mode: statistics.median(values) for mode, values in times.items()}
     result = {
         "particles": int(len(particle_type)),
@@ -315,68 +318,66 @@ def freeze_check(
     Args:
         cases: ``(name, initial [N, H + 1, D], particle_type [N], truth [T, N, D] or None)``; truth frames
             start after the initial ones.
-        freeze_speed: :attr:`LearnedSimulator.freeze_speed` of the frozen rollout (data units per frame).
+        freeze_speed: the frozen rollout's speed at rest (:class:`gnsx.rules.freezing.Freezing`, data units
+            per frame).
         steps: frames to predict (default: the truth's length, else :data:`FREEZE_STEPS`).
     Returns:
         one row per case: ``particles``, ``frames``, ``mse_vs_exact`` (position MSE per coordinate of the
         frozen rollout against the exact one, dynamic particles, every frame), ``emd_vs_exact`` (mean Earth
         Mover's distance between their dynamic particles every ``emd_every`` frames), ``frozen_share``
         (frozen dynamic particles, mean over the same frames), ``ms_exact``, ``ms_freeze`` (median ms/frame
-        of one :meth:`~LearnedSimulator.predict_positions` on the frozen rollout's inputs at those frames,
-        the two modes interleaved frame by frame; the boundary of the rollout is not timed), ``ratio`` and,
-        with truth, ``rollout_mse_exact`` and ``rollout_mse_freeze`` (against it). The model's
-        ``freeze_speed`` is restored.
+        of one model step, :meth:`~LearnedSimulator.predict_positions` or the frozen one, on the frozen
+        rollout's inputs at those frames, the two modes interleaved frame by frame; the boundary of the
+        rollout is not timed), ``ratio`` and, with truth, ``rollout_mse_exact`` and ``rollout_mse_freeze``
+        (against it). The model is not changed.
     """
     from gnsx.evaluation.metrics import earth_movers_distance, position_mse
     from gnsx.model.rollout import rollout
 
-    switch = simulator.freeze_speed
+    freezing = Freezing(simulator, freeze_speed)
+    # The model's step of each mode.
+    modes = {"exact": simulator.predict_positions, "freeze": freezing.predict_positions}
     rows = []
-    try:
-        for name, initial, particle_type, truth in cases:
-            num_steps = steps or (len(truth) if truth is not None else FREEZE_STEPS)
-            dynamic = particle_type != KINEMATIC_PARTICLE_ID
-            modes = {"exact": None, "freeze": freeze_speed}
-            rollouts = {}
-            for mode, speed in modes.items():
-                simulator.freeze_speed = speed
-                rollouts[mode] = rollout(simulator, initial, particle_type, num_steps)
-            frozen, exact = rollouts["freeze"], rollouts["exact"]
-            every = list(range(emd_every - 1, num_steps, emd_every)) or [num_steps - 1]
-            frames = torch.cat([initial.transpose(0, 1), frozen])  # [H + 1 + T, N, D]
-            size = initial.shape[1]
-            windows = [frames[t + 1 : t + 1 + size].transpose(0, 1) for t in every]  # inputs of frame t + 1
-            held = [simulator.frozen_particles(window, particle_type) for window in windows]
-            # Speed: one frame of each mode in turn on the frozen rollout's own states (so other load hits
-            # both alike), the median per mode.
-            times: dict[str, list[float]] = {mode: [] for mode in modes}
-            for window in windows:
-                for mode, speed in modes.items():
-                    simulator.freeze_speed = speed
-                    start = time.perf_counter()
-                    simulator.predict_positions(window, particle_type)
-                    times[mode].append(1000 * (time.perf_counter() - start))
-            ms = {mode: statistics.median(values) for mode, values in times.items()}
-            row = {
-                "case": name,
-                "particles": int(len(particle_type)),
-                "frames": int(num_steps),
-                "mse_vs_exact": position_mse(frozen, exact, dynamic),
-                "emd_vs_exact": float(np.mean([
-                    earth_movers_distance(frozen[t, dynamic], exact[t, dynamic], method="auto") for t in every
-                ])),
-                "frozen_share": float(torch.stack(held)[:, dynamic].float().mean()),
-                "ms_exact": ms["exact"],
-                "ms_freeze": ms["freeze"],
-                "ratio": ms["exact"] / ms["freeze"],
-            }  # fmt: skip
-            if truth is not None:
-                truth = truth[:num_steps]
-                row["rollout_mse_exact"] = position_mse(exact, truth, dynamic)
-                row["rollout_mse_freeze"] = position_mse(frozen, truth, dynamic)
-            rows.append(row)
-    finally:
-        simulator.freeze_speed = switch
+    for name, initial, particle_type, truth in cases:
+        num_steps = steps or (len(truth) if truth is not None else FREEZE_STEPS)
+        dynamic = particle_type != KINEMATIC_PARTICLE_ID
+        rollouts = {
+            mode: rollout(simulator, initial, particle_type, num_steps, predict=predict)
+            for mode, predict in modes.items()
+        }
+        frozen, exact = rollouts["freeze"], rollouts["exact"]
+        every = list(range(emd_every - 1, num_steps, emd_every)) or [num_steps - 1]
+        frames = torch.cat([initial.transpose(0, 1), frozen])  # [H + 1 + T, N, D]
+        size = initial.shape[1]
+        windows = [frames[t + 1 : t + 1 + size].transpose(0, 1) for t in every]  # inputs of frame t + 1
+        held = [freezing.frozen_particles(window, particle_type) for window in windows]
+        # Speed: one frame of each mode in turn on the frozen rollout's own states (so other load hits
+        # both alike), the median per mode.
+        times: dict[str, list[float]] = {mode: [] for mode in modes}
+        for window in windows:
+            for mode, predict in modes.items():
+                start = time.perf_counter()
+                predict(window, particle_type)
+                times[mode].append(1000 * (time.perf_counter() - start))
+        ms = {mode: statistics.median(values) for mode, values in times.items()}
+        row = {
+            "case": name,
+            "particles": int(len(particle_type)),
+            "frames": int(num_steps),
+            "mse_vs_exact": position_mse(frozen, exact, dynamic),
+            "emd_vs_exact": float(np.mean([
+                earth_movers_distance(frozen[t, dynamic], exact[t, dynamic], method="auto") for t in every
+            ])),
+            "frozen_share": float(torch.stack(held)[:, dynamic].float().mean()),
+            "ms_exact": ms["exact"],
+            "ms_freeze": ms["freeze"],
+            "ratio": ms["exact"] / ms["freeze"],
+        }  # fmt: skip
+        if truth is not None:
+            truth = truth[:num_steps]
+            row["rollout_mse_exact"] = position_mse(exact, truth, dynamic)
+            row["rollout_mse_freeze"] = position_mse(frozen, truth, dynamic)
+        rows.append(row)
     return rows
 
 

@@ -44,6 +44,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.waterramps import WATERRAMPS
 from gnsx.evaluation.timing import measure_inference, memory_peak, memory_start, packed_scene
 from gnsx.model.registry import MODELS, build_model
+from gnsx.model.training_targets import noisy_training_pair
 from gnsx.perf.flops import forward_flops, training_flops
 
 #: Sizes of ``make bench`` (particles per scene); a GPU adds :data:`CUDA_EXTRA_SIZES`.
@@ -130,7 +131,7 @@ def training_step(system, batch, optimizer, scheduler=None) -> torch.Tensor:
     from gnsx.training.system import acceleration_loss
 
     optimizer.zero_grad(set_to_none=True)
-    predicted, target = system.simulator.noisy_training_pair(
+    predicted, target = noisy_training_pair(system.simulator,
         batch.position_sequence, batch.next_position, batch.particle_type, system.current_noise_std(),
         batch=batch.batch,
     )  # fmt: skip

@@ -56,7 +56,7 @@ def check_seed(cfg: DictConfig, key: str = "seed") -> int:
 
 def check_train_config(cfg: DictConfig) -> None:
     """Every setting of ``train.py`` that can be wrong on its own (the dataset and a resumed checkpoint are
-    checked against each other later, :mod:`gnsx.training.pipeline`).
+    checked against each other later, :mod:`gnsx.training.inputs`).
 
     Raises:
         ConfigError: the first bad setting, e.g. ``train.max_steps=0: must be >= 1``.
@@ -182,8 +182,8 @@ def check_evaluate_config(cfg: DictConfig) -> None:
 
 
 def check_rules(cfg: DictConfig, key: str) -> None:
-    """The rollout rules block at ``key`` (:class:`gnsx.model.rules.Rules`): known rules, booleans."""
-    from gnsx.model.rules import Rules
+    """The rollout rules block at ``key`` (:class:`gnsx.rules.rules.Rules`): known rules, booleans."""
+    from gnsx.rules.rules import Rules
 
     Rules.from_config(cfg, key)
 

@@ -16,6 +16,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.evaluation.scoring import evaluate_trajectory
 from gnsx.model.checkpoint import simulator_from_hparams
 from gnsx.model.mirror import random_mirror
+from gnsx.model.training_targets import noisy_training_rollout
 from gnsx.training.numerics import SkippedSteps, drop_gradients, finite_gradients
 from gnsx.training.schedule import LR_SCHEDULES, learning_rate, noise_std, warmup_factor
 
@@ -68,11 +69,11 @@ class GNSSystem(L.LightningModule):
         noise_std: std of the training noise on the most recent velocity at the start of training.
         noise_decay: factor applied to the noise std by the end of the LR decay (paper: 0.4).
         noise_correction: share of the input position noise the target undoes (0: DeepMind's; 1: the
-            target is the true next position; :meth:`LearnedSimulator.noisy_training_pair`).
+            target is the true next position; :func:`gnsx.model.training_targets.noisy_training_pair`).
         pushforward_steps: model steps without gradient before the loss step (the pushforward trick; the
             datamodule must give samples that many frames longer); 0: DeepMind's single step.
         unroll_steps: model steps the loss averages over, with the gradient through them
-            (:meth:`LearnedSimulator.noisy_training_rollout`; the datamodule must give samples
+            (:func:`gnsx.model.training_targets.noisy_training_rollout`; the datamodule must give samples
             ``unroll_steps - 1`` frames longer); 1: DeepMind's single step.
         mirror: train on each sample or its left-right reflection, with probability 1/2
             (:mod:`gnsx.model.mirror`).
@@ -135,7 +136,7 @@ class GNSSystem(L.LightningModule):
         self.skipped = SkippedSteps(max_skipped_steps)
         self._skipping = False  # the current step was skipped
         # Training samples (graphs) the weights have seen, counting the run a fine-tune started from
-        # (``gnsx.training.pipeline.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
+        # (``gnsx.training.builders.build_system`` sets it from ``train.init_weights``): the shipped weights' budget
         # is measured in samples, whatever the batch size or the number of runs (tests/test_pretrained.py).
         # Per process under DDP, and a resumed run of a checkpoint from before 2026-12-03 counts from 0:
         # both undercount, so the budget rule can only be stricter.
@@ -197,7 +198,8 @@ class GNSSystem(L.LightningModule):
             sequence, next_position = random_mirror(
                 sequence, next_position, self.simulator.bounds, batch.batch, num_graphs=batch.num_graphs
             )
-        predicted, target = self.simulator.noisy_training_rollout(
+        predicted, target = noisy_training_rollout(
+            self.simulator,
             sequence,
             next_position,
             batch.particle_type,

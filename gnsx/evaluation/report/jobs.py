@@ -10,7 +10,7 @@ The baseline ratio is the geometric mean of ``baseline_mse / rollout_mse`` over 
 interval (the ratio of the means when neither is recorded); below 1 the model does not beat the physics-free
 baseline (:meth:`Job.baseline_ratio`).
 
-``results.json`` (one per job folder, written by :func:`gnsx.training.pipeline.run_training`)::
+``results.json`` (one per job folder, written by :func:`gnsx.training.run.run_training`)::
 
     status          "ok" | "failed" | "running" (a job killed before it finished leaves "running")
     error           one line: why the job failed ("diverged: ..." for a NaN/Inf loss or rollout), else null

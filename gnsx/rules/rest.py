@@ -49,6 +49,7 @@ import torch
 from torch import Tensor
 
 from gnsx.model.neighbors import radius_graph
+from gnsx.rules.scale import rules_radius
 
 #: Speed threshold, as a fraction of the length of the data's velocity std (per frame).
 SPEED = 0.03
@@ -70,7 +71,8 @@ class RestHold:
         speed: largest current speed held (data units per frame).
         acceleration: largest predicted acceleration held (data units per frame^2).
         wake_acceleration: a neighbour accelerating faster than this (per frame^2) keeps a particle awake.
-        radius: neighbourhood radius (data units), the model's connectivity radius.
+        radius: neighbourhood radius (data units), the data's connectivity radius
+            (:func:`~gnsx.rules.scale.rules_radius`).
         level: test 4's tolerance on a pool's surface (data units); ``None`` skips test 4.
         walls: ``(left, right)`` x of the box's walls and ``floor`` its lower y (data units), for test 4.
     """
@@ -101,7 +103,7 @@ class RestHold:
             gravity = float((simulator.free_fall * simulator.acc_std + simulator.acc_mean).norm())
         else:
             gravity = float(simulator.acc_std.norm())
-        radius = float(simulator.rules_radius)
+        radius = rules_radius(simulator)
         bounds = simulator.bounds.double().cpu()
         return cls(
             speed * vel,

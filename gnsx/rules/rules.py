@@ -1,19 +1,20 @@
 """Which of the simulator's rules hold a model's rollout, besides the walls and ramps.
 
 A learned model predicts accelerations; the rollout loop (:func:`gnsx.model.rollout.rollout`) then applies,
-each step and in this order, rules that are the simulator's, not learned:
+each step and in this order, rules that are the simulator's, not learned (their steps:
+:func:`gnsx.rules.rollout.constraints`):
 
 ==================  ===========================================  =============================================
 field               rule                                         module
 ==================  ===========================================  =============================================
-``free_flight``     a free rigid cluster of water falls at g     :class:`gnsx.model.freeflight.FreeFlight`
-``hold_rest``       water at rest stays at rest                  :class:`gnsx.model.rest.RestHold`
-``level_pool``      a level pool from wall to wall is at rest    :class:`gnsx.model.rest.RestHold`, test 4
-``incompressible``  water does not compress                      :class:`gnsx.model.density.DensityLimit`
+``free_flight``     a free rigid cluster of water falls at g     :class:`gnsx.rules.freeflight.FreeFlight`
+``hold_rest``       water at rest stays at rest                  :class:`gnsx.rules.rest.RestHold`
+``level_pool``      a level pool from wall to wall is at rest    :class:`gnsx.rules.rest.RestHold`, test 4
+``incompressible``  water does not compress                      :class:`gnsx.rules.density.DensityLimit`
 ==================  ===========================================  =============================================
 
-and last the walls and ramps (:class:`gnsx.model.boundary.Boundary`), switched by the rollout's own
-``constrain`` (``False``: the network alone, not even the walls).
+and last the walls and ramps (:class:`gnsx.model.boundary.Boundary`, the model's), switched by the rollout's
+own ``constrain`` (``False``: the network alone, not even the walls).
 
 **Every rule is off by default**: a figure of gnsx measures the network (with the walls and ramps, the
 scene's geometry, which hold the MPM's particles too). The rules are a production mode for users who want
@@ -23,6 +24,10 @@ predicts where they act (free flight replaces the model's step by the physics-fr
 with rules measures the model and the rules together; evaluation prints and records it *beside* the raw
 figure, labelled, never instead of it. The physics-free baseline never gets rules, only the boundary.
 ``results.json`` records the rules of each table it holds.
+
+Approximate freezing (:mod:`gnsx.rules.freezing`) is a rule of the same layer but not one of these switches:
+it trades accuracy for speed, is set by a speed (``freeze_speed``) and is measured by
+``gnsx.perf.benchmark --freeze-check``, not by the evaluation's tables.
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ tolerance) rho_0``, or, where that is higher, the particle's own density in the 
 the jittered blocks a scene starts with or the dense bottom of a pool at rest. Where the water is not
 compressed nothing moves; displacements are pairwise and antisymmetric, so they conserve the water's centre
 of mass. ``rho_0`` comes from the scene itself: the density of an interior particle of a square lattice at
-the first frame's particle spacing (:func:`gnsx.model.neighbors.particle_spacing`, the 4-neighbour estimate that
-the area metric and the renderer use; scenes start as jittered blocks on a lattice).
+the first frame's particle spacing (:func:`gnsx.model.neighbors.particle_spacing`, the 4-neighbour estimate
+that the area metric and the renderer use; scenes start as jittered blocks on a lattice).
 
 Before 2026-12-02 the spacing was the median nearest-neighbour distance, which reads ~0.73 of the lattice
 spacing on the MPM's jittered blocks, so ``rho_0`` was ~1.6x the water's real rest density and the limit
@@ -73,7 +73,8 @@ class DensityLimit:
     """The one-sided density limit of one scene.
 
     Attributes:
-        radius: kernel support ``h`` (data units), the model's connectivity radius.
+        radius: kernel support ``h`` (data units), the data's connectivity radius
+            (:func:`~gnsx.rules.scale.rules_radius`).
         rest_density: ``rho_0``, kernel units.
         spacing: the water's particle spacing (data units).
         tolerance: relative compression allowed before particles are moved.

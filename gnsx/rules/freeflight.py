@@ -36,7 +36,7 @@ truth's contact, and the model shuffled their jittered lattices: the new clearan
 frames to 0.13x and over 50 to 0.47x on the 32 tuning trajectories, and left the whole rollout alone (0.99x
 [0.94, 1.04]; geometric means of the per-trajectory ratios). A single particle far from everything is a
 cluster of its own and falls at g, as the pairwise decoder already makes it. The radii are the data's
-(:attr:`LearnedSimulator.rules_radius`), not the model's: the MPM's reach does not grow with the model's
+(:func:`gnsx.rules.scale.rules_radius`), not the model's: the MPM's reach does not grow with the model's
 graph. (When it did, a model with radius 0.05 instead of 0.035 had a reach of 0.1, fewer fresh blocks counted
 as free, and its MSE over the first 10 frames was ~250x worse; docs/decisions.)
 
@@ -57,6 +57,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.rules.scale import rules_radius
 
 #: Velocity tolerance, as a fraction of the length of the data's velocity std (per frame): the truth's free
 #: blocks move as one to float precision; a model's rollout that has started shuffling does not.
@@ -171,9 +172,9 @@ class FreeFlight:
         return cls(
             gravity=(free_fall * simulator.acc_std + simulator.acc_mean).detach().cpu(),
             bounds=simulator.bounds.detach().cpu(),
-            reach=reach * float(simulator.rules_radius),
+            reach=reach * rules_radius(simulator),
             tolerance=tolerance * float(simulator.vel_std.norm()),
-            clearance=clearance * float(simulator.rules_radius),
+            clearance=clearance * rules_radius(simulator),
             lookahead=float(lookahead),
         )
 

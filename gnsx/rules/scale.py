@@ -1,0 +1,19 @@
+"""The rules' length scale: the data's connectivity radius, whatever radius the model's graph uses.
+
+The rules model the data's physics (free flight's reach is the MPM grid's, the rest hold's neighbourhood and
+the density kernel are the water's particle spacing), so their lengths are in units of the dataset's
+connectivity radius. A simulator records that radius with its data's other statistics (``data_radius`` in
+:class:`gnsx.model.simulator.LearnedSimulator`'s config, like ``bounds`` and ``vel_std``), because a model
+may be trained with a graph radius of its own (``model.radius=0.05`` on data of 0.035).
+"""
+
+from __future__ import annotations
+
+from gnsx.model.simulator import LearnedSimulator
+
+
+def rules_radius(simulator: LearnedSimulator) -> float:
+    """The dataset's connectivity radius (data units) that the simulator was trained on; the model's own
+    radius for checkpoints saved before ``data_radius`` was recorded (they all used the dataset's)."""
+    data_radius = simulator.config.get("data_radius")
+    return float(simulator.radius if data_radius is None else data_radius)
