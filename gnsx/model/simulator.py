@@ -52,6 +52,7 @@ import torch
 from torch import Tensor, nn
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID, NUM_PARTICLE_TYPES
+from gnsx.model.config import check_config
 from gnsx.model.culling import particles_in_reach
 from gnsx.model.features import (
     edge_features,
@@ -60,11 +61,9 @@ from gnsx.model.features import (
     wall_contact_gate,
     wall_features,
 )
-from gnsx.model.graph_network import DECODERS, EncodeProcessDecode
-from gnsx.model.neighbors import METHODS, radius_graph
+from gnsx.model.graph_network import EncodeProcessDecode
+from gnsx.model.neighbors import radius_graph
 from gnsx.model.padding import needs_padding
-
-TYPE_ENCODINGS = ("scalar", "embedding")
 
 
 class LearnedSimulator(nn.Module):
@@ -160,7 +159,7 @@ class LearnedSimulator(nn.Module):
             "compile": bool(compile),
             "data_radius": None if data_radius is None else float(data_radius),
         }
-        self._check_config()
+        check_config(self.config)
         cfg = self.config
         self.dim = cfg["dim"]
         self.radius = cfg["radius"]
@@ -203,41 +202,6 @@ class LearnedSimulator(nn.Module):
         )
         if cfg["compile"]:
             self.network.compile_blocks()
-
-    def _check_config(self) -> None:
-        cfg = self.config
-        dim = cfg["dim"]
-        if dim < 1:
-            raise ValueError(f"LearnedSimulator: dim must be >= 1, got {dim}")
-        if len(cfg["bounds"]) != dim or any(len(pair) != 2 for pair in cfg["bounds"]):
-            raise ValueError(f"LearnedSimulator: bounds must be [dim={dim}][2], got {cfg['bounds']}")
-        for name in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
-            if len(cfg[name]) != dim:
-                raise ValueError(f"LearnedSimulator: {name} must have dim={dim} values, got {cfg[name]}")
-        for name in ("vel_std", "acc_std"):
-            if any(not v > 0 for v in cfg[name]):
-                raise ValueError(f"LearnedSimulator: {name} must be > 0, got {cfg[name]}")
-        if not cfg["radius"] > 0:
-            raise ValueError(f"LearnedSimulator: radius must be > 0, got {cfg['radius']}")
-        if cfg["data_radius"] is not None and not cfg["data_radius"] > 0:
-            raise ValueError(f"LearnedSimulator: data_radius must be None or > 0, got {cfg['data_radius']}")
-        if cfg["history"] < 1:
-            raise ValueError(f"LearnedSimulator: history must be >= 1, got {cfg['history']}")
-        if cfg["type_encoding"] not in TYPE_ENCODINGS:
-            raise ValueError(
-                f"LearnedSimulator: type_encoding must be one of {TYPE_ENCODINGS}, "
-                f"got {cfg['type_encoding']!r}"
-            )
-        if len(cfg["wall_clip"]) != 2 or cfg["wall_clip"][0] > cfg["wall_clip"][1]:
-            raise ValueError(f"LearnedSimulator: wall_clip must be (low, high), got {cfg['wall_clip']}")
-        if cfg["decoder"] not in DECODERS:
-            raise ValueError(f"LearnedSimulator: decoder must be one of {DECODERS}, got {cfg['decoder']!r}")
-        if cfg["gravity"] is not None and len(cfg["gravity"]) != dim:
-            raise ValueError(f"LearnedSimulator: gravity must have dim={dim} values, got {cfg['gravity']}")
-        if cfg["neighbor_search"] not in METHODS:
-            raise ValueError(
-                f"LearnedSimulator: neighbor_search must be one of {METHODS}, got {cfg['neighbor_search']!r}"
-            )
 
     # The switch lives in ``config`` so that ``LearnedSimulator(**config)`` rebuilds the model as it runs.
     @property
