@@ -52,6 +52,9 @@ def test_the_table_reads_known_ratios_and_the_changes_from_the_configs(tmp_path)
     assert config_changes(arms["pairwise"][0]["config"], arms["base"][1]["config"]) == [
         "model.decoder=pairwise"
     ]
+    stale = tmp_path / "kept" / "learning_arm=base,seed=0" / "checkpoints"  # committed mid-run to resume
+    stale.mkdir(parents=True)
+    (stale / "last.ckpt").write_bytes(b"weights")
     summary = build(sweep, tmp_path / "out", jobs_dest=tmp_path / "kept")
     rows = {row["arm"]: row for row in summary["arms"]}
     # Every trajectory at exactly 0.5x / 0.25x the baseline (seeds' geometric mean): ratios 2 and 4, no spread.

@@ -253,13 +253,15 @@ def plot_curves(arms: dict[str, dict[int, dict]], path: Path) -> Path:
 
 
 def copy_jobs(arms: dict[str, dict[int, dict]], dest: Path) -> None:
-    """Keep each job's curve, record and config under ``dest/<job folder>`` (no checkpoints), so that the
-    report can be rebuilt from a commit and ``make learning`` skips the finished jobs."""
+    """Keep each finished job's curve, record and config under ``dest/<job folder>`` (no checkpoints), so
+    that the report can be rebuilt from a commit and ``make learning`` skips the finished jobs."""
     for jobs in arms.values():
         for job in jobs.values():
             if job["results"].get("status") != "ok":
                 continue
             target = dest / job["dir"].name
+            # A job committed mid-run with its checkpoint (to resume on another machine) keeps none once done.
+            shutil.rmtree(target / "checkpoints", ignore_errors=True)
             for name in KEPT_FILES:
                 source = job["dir"] / name
                 if source.is_file():
