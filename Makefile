@@ -118,7 +118,7 @@ learning: install ## The learning study: 10 arms x 2 seeds, 20 min of one thread
 	@mkdir -p $(LEARNING_DIR); for job in docs/learning/jobs/*/; do [ -d "$$job" ] || continue; \
 		[ -e "$(LEARNING_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(LEARNING_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name learning hydra.sweep.dir=$(LEARNING_DIR) $(ARGS)
-	$(PY) -m gnsx.evaluation.report.learning $(LEARNING_DIR) --out docs/learning --copy-jobs docs/learning/jobs
+	$(PY) -m gnsx.evaluation.report.learning $(LEARNING_DIR) --out docs/learning --copy-jobs docs/learning/jobs --budget-minutes 20
 
 LONG_DIR ?= outputs/learning_long
 learning-long: install ## The learning study's winner trained long: ARM=<arm> (sweeps/learning_arm), 200k steps on one thread (~3.5 h; rerun to resume), scored on the test split beside the shipped weights

@@ -55,7 +55,7 @@ def test_the_table_reads_known_ratios_and_the_changes_from_the_configs(tmp_path)
     stale = tmp_path / "kept" / "learning_arm=base,seed=0" / "checkpoints"  # committed mid-run to resume
     stale.mkdir(parents=True)
     (stale / "last.ckpt").write_bytes(b"weights")
-    summary = build(sweep, tmp_path / "out", jobs_dest=tmp_path / "kept")
+    summary = build(sweep, tmp_path / "out", jobs_dest=tmp_path / "kept", budget_minutes=20)
     rows = {row["arm"]: row for row in summary["arms"]}
     # Every trajectory at exactly 0.5x / 0.25x the baseline (seeds' geometric mean): ratios 2 and 4, no spread.
     assert rows["base"]["x_baseline"][0] == pytest.approx(2.0)
@@ -67,6 +67,7 @@ def test_the_table_reads_known_ratios_and_the_changes_from_the_configs(tmp_path)
     assert rows["base"]["ms_per_step"] == pytest.approx(50.0)
     report = (tmp_path / "out" / "report.md").read_text()
     assert "| pairwise | model.decoder=pairwise |" in report and "0.50x [0.50, 0.50]" in report
+    assert "--budget-minutes 20`" in report
     assert (tmp_path / "out" / "curves.png").stat().st_size > 10_000
     assert (tmp_path / "kept" / "learning_arm=base,seed=0" / "curve.jsonl").is_file()
     assert not (tmp_path / "kept" / "learning_arm=base,seed=0" / "checkpoints").exists()

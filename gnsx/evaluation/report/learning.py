@@ -8,7 +8,9 @@ trajectories. The report writes:
 
 * ``curves.png``: validation rollout MSE against training time and against samples seen (each arm's mean over
   its seeds, the seeds thin), the baseline's level dashed, and the final area over the truth's against
-  training time;
+  training time. With ``--budget-minutes M`` the time axis is the study's budget, ``M x step / max_steps``
+  (the arms' step budgets are M minutes at each arm's calibrated rate), so that arms run under different
+  machine loads stand on one axis; without it, the measured training time;
 * ``report.md`` and ``learning.json``: one row per arm: what it changes against the base arm (read from the
   jobs' composed configs, so the table cannot drift from what ran), steps, measured ms per training step,
   samples, the final validation rollout MSE per seed and pooled (+- SE over trajectories), the ratio to the
@@ -200,16 +202,25 @@ def table(rows: Sequence[dict], changes: dict[str, list[str]]) -> list[str]:
     return lines
 
 
-def plot_curves(arms: dict[str, dict[int, dict]], path: Path) -> Path:
+def _minutes(row: dict, job: dict, budget_minutes: float | None) -> float:
+    """A validation row's training time: the measured one, or its share of the arm's step budget."""
+    if budget_minutes is None:
+        return row["time_s"] / 60
+    max_steps = (job["config"].get("train") or {}).get("max_steps") or row["step"]
+    return budget_minutes * row["step"] / float(max_steps)
+
+
+def plot_curves(arms: dict[str, dict[int, dict]], path: Path, budget_minutes: float | None = None) -> Path:
     """``curves.png``: rollout MSE against training minutes and samples, the final area against minutes."""
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(17, 5))
     for index, (arm, jobs) in enumerate(arms.items()):
         colour = f"C{index % 10}"
-        curves = [job["curve"]["val"] for job in jobs.values() if job["curve"]["val"]]
-        for rows in curves:  # each seed, thin
-            minutes = [r["time_s"] / 60 for r in rows]
+        runs = [job for job in jobs.values() if job["curve"]["val"]]
+        curves = [job["curve"]["val"] for job in runs]
+        times = [[_minutes(r, job, budget_minutes) for r in job["curve"]["val"]] for job in runs]
+        for rows, minutes in zip(curves, times):  # each seed, thin
             axes[0].plot(minutes, [r["rollout_mse"] for r in rows], color=colour, lw=0.6, alpha=0.5)
             axes[1].plot([r["samples"] for r in rows], [r["rollout_mse"] for r in rows], color=colour,
                          lw=0.6, alpha=0.5)  # fmt: skip
@@ -218,7 +229,7 @@ def plot_curves(arms: dict[str, dict[int, dict]], path: Path) -> Path:
         # The seeds' mean (geometric for the error) at the validation points they share.
         length = min(len(rows) for rows in curves) if curves else 0
         if length:
-            minutes = np.mean([[r["time_s"] / 60 for r in rows[:length]] for rows in curves], axis=0)
+            minutes = np.mean([t[:length] for t in times], axis=0)
             samples = np.mean([[r["samples"] for r in rows[:length]] for rows in curves], axis=0)
             error = np.exp(
                 np.mean([[math.log(r["rollout_mse"]) for r in rows[:length]] for rows in curves], 0)
@@ -235,9 +246,13 @@ def plot_curves(arms: dict[str, dict[int, dict]], path: Path) -> Path:
         for ax in axes[:2]:
             ax.axhline(baseline["rollout_mse"], color="k", ls="--", lw=1, label="physics-free baseline")
     axes[2].axhline(1.0, color="k", ls="--", lw=1)
-    axes[0].set_xlabel("training time (min, one thread, validation excluded)")
+    if budget_minutes is None:
+        time_label = "training time (min, measured, validation excluded)"
+    else:
+        time_label = "training time (min of the budget: step / budget steps x budget)"
+    axes[0].set_xlabel(time_label)
     axes[1].set_xlabel("training samples seen")
-    axes[2].set_xlabel("training time (min)")
+    axes[2].set_xlabel(time_label)
     axes[0].set_ylabel("validation rollout MSE, raw network (geometric mean of seeds)")
     axes[2].set_ylabel("water area at the last frame / truth's (mean over trajectories)")
     for ax in axes[:2]:
@@ -269,7 +284,12 @@ def copy_jobs(arms: dict[str, dict[int, dict]], dest: Path) -> None:
                     shutil.copy2(source, target / name)
 
 
-def build(sweep_dir: str | Path, out: str | Path, jobs_dest: str | Path | None = None) -> dict[str, Any]:
+def build(
+    sweep_dir: str | Path,
+    out: str | Path,
+    jobs_dest: str | Path | None = None,
+    budget_minutes: float | None = None,
+) -> dict[str, Any]:
     """Write ``curves.png``, ``report.md`` and ``learning.json`` into ``out``; returns the summary."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -280,14 +300,16 @@ def build(sweep_dir: str | Path, out: str | Path, jobs_dest: str | Path | None =
         arm: config_changes(next(iter(jobs.values()))["config"], base_config) for arm, jobs in arms.items()
     }
     rows = [arm_summary(arm, jobs, base_jobs) for arm, jobs in arms.items()]
-    plot_curves(arms, out / "curves.png")
+    plot_curves(arms, out / "curves.png", budget_minutes)
     trajectories = next((r["trajectories"] for jobs in arms.values() for j in jobs.values()
                          for r in j["curve"]["val"][-1:]), "?")  # fmt: skip
     lines = [
         "# Learning study: the table",
         "",
         f"Raw network, final validation point of each arm, {trajectories} validation trajectories. Rebuilt with",
-        f"`python -m gnsx.evaluation.report.learning {sweep_dir} --out {out}`.",
+        f"`python -m gnsx.evaluation.report.learning {sweep_dir} --out {out}"
+        + ("" if budget_minutes is None else f" --budget-minutes {budget_minutes:g}")
+        + "`.",
         "'x baseline': the physics-free baseline's rollout MSE over the arm's, '/ base': the arm's over the base",
         "arm's; both geometric means over trajectories (each trajectory's error the geometric mean of its",
         "seeds) with 95% t intervals; '(tie)': the interval contains 1. 'ms/step': measured beside a second",
@@ -315,8 +337,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--copy-jobs", type=Path, default=None, metavar="DIR",
                         help="keep each finished job's curve, record and config here (no checkpoints)")  # fmt: skip
+    parser.add_argument("--budget-minutes", type=float, default=None, metavar="M",
+                        help="time axis: M x step / max_steps (the equal budget); default: measured")  # fmt: skip
     args = parser.parse_args(argv)
-    build(args.sweep, args.out, args.copy_jobs)
+    build(args.sweep, args.out, args.copy_jobs, args.budget_minutes)
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out} (curves.png, report.md, learning.json)")
     return 0
