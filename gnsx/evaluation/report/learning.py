@@ -179,6 +179,10 @@ def _pm(value: float, se: float, spec: str = ".3g") -> str:
     return f"{value:{spec}} ± {se:{spec}}" if math.isfinite(se) else f"{value:{spec}}"
 
 
+def _number(value: float) -> str:
+    return f"{value:.1f}" if math.isfinite(value) else "–"
+
+
 def table(rows: Sequence[dict], changes: dict[str, list[str]]) -> list[str]:
     """The report's Markdown table, one line per arm."""
     lines = [
@@ -195,7 +199,7 @@ def table(rows: Sequence[dict], changes: dict[str, list[str]]) -> list[str]:
             vs_base += " (tie)" if interval_contains_one(*row["vs_base"][1:]) else ""
         lines.append(
             f"| {row['arm']} | {'; '.join(changes.get(row['arm'], [])) or '–'} | {row['steps']:,} "
-            f"| {row['ms_per_step']:.1f} | {row['training_min']:.1f} | {row['samples']:,} | {seeds} "
+            f"| {_number(row['ms_per_step'])} | {_number(row['training_min'])} | {row['samples']:,} | {seeds} "
             f"| {_pm(row['rollout_mse'], row['rollout_mse_se'])} | {_interval(row['x_baseline'])} | {vs_base} "
             f"| {_pm(row['area_ratio'], row['area_ratio_se'], '.2f')} |"
         )
