@@ -39,7 +39,7 @@ from gnsx.core.atomic import write_json
 from gnsx.core.cli import run_main
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
-from gnsx.evaluation.scoring import baseline_errors, gravity_per_frame, horizon_mse
+from gnsx.evaluation.scoring import baseline_errors, gravity_per_frame, horizon_mse, onestep_predictions
 from gnsx.evaluation.spread import mean_se
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
@@ -55,8 +55,6 @@ FLIGHT_TOLERANCE = 0.1
 REST_FRAMES = 3.0
 #: Rollout horizons reported, in predicted frames; None is the whole rollout.
 HORIZONS = (10, 50, 100, None)
-#: Nodes per batched one-step call (disjoint graphs, as the scoring library's one-step MSE).
-_MAX_NODES = 200_000
 
 
 def classify(position: np.ndarray, particle_type: np.ndarray, gravity: np.ndarray) -> np.ndarray:
@@ -81,25 +79,17 @@ def classify(position: np.ndarray, particle_type: np.ndarray, gravity: np.ndarra
     return labels
 
 
-@torch.inference_mode()
 def onestep_positions(
     simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor
 ) -> np.ndarray:
-    """``[T, N, D]`` one-step predictions from the true input frames: entry ``k + 1`` is predicted from true
+    """``[T, N, D]`` one-step predictions from the true input frames (the scoring library's
+    :func:`~gnsx.evaluation.scoring.onestep_predictions`, every window): entry ``k + 1`` is predicted from true
     frames ``k - H .. k``; NaN where no step lands (the first ``H + 1`` frames)."""
     frames = simulator.input_frames
-    num_frames, num_particles, dim = position.shape
-    out = np.full((num_frames, num_particles, dim), np.nan)
-    starts = list(range(0, num_frames - frames))
-    per_batch = max(1, _MAX_NODES // max(num_particles, 1))
-    for i in range(0, len(starts), per_batch):
-        chunk = starts[i : i + per_batch]
-        windows = torch.stack([position[s : s + frames] for s in chunk])  # [K, H+1, N, D]
-        k = len(chunk)
-        sequence = windows.permute(0, 2, 1, 3).reshape(k * num_particles, frames, dim)
-        graph = torch.arange(k).repeat_interleave(num_particles)
-        predicted = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph)
-        out[np.array(chunk) + frames] = predicted.reshape(k, num_particles, dim).numpy()
+    out = np.full(tuple(position.shape), np.nan)
+    starts = range(0, position.shape[0] - frames)
+    for chunk, predicted in onestep_predictions(simulator, position, particle_type, starts):
+        out[np.array(chunk) + frames] = predicted.cpu().numpy()
     return out
 
 

@@ -71,7 +71,7 @@ import csv
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -202,34 +202,49 @@ def horizon_mse(per_frame_mse: np.ndarray, input_frames: int, horizon: int) -> f
 
 
 @torch.inference_mode()
-def onestep_mse(
-    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, stride: int = 10
-) -> float:
-    """Position MSE per coordinate of single-step predictions from ground-truth inputs (dynamic particles).
-
-    Inputs ``p[k-H..k]`` for every ``stride``-th ``k`` from ``H``, batched as disjoint graphs of at most
-    ``_ONESTEP_MAX_NODES`` nodes.
+def onestep_predictions(
+    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, starts: Sequence[int]
+) -> Iterator[tuple[list[int], torch.Tensor]]:
+    """Single steps from ground-truth inputs ``p[s..s+H]`` for each ``s`` of ``starts``, batched as disjoint
+    graphs of at most ``_ONESTEP_MAX_NODES`` nodes.
 
     Args:
         position: ``[T, N, D]`` ground truth; particle_type: ``[N]``.
+    Yields:
+        ``(chunk, predicted)``: the starts of one batch and their predicted frames ``s + H + 1``,
+        ``[len(chunk), N, D]``.
     """
     frames = simulator.input_frames
     num_particles, dim = position.shape[1], position.shape[2]
-    starts = list(range(0, position.shape[0] - frames, max(stride, 1)))
-    if not starts:
-        return float("nan")
-    dynamic = particle_type != KINEMATIC_PARTICLE_ID
     per_batch = max(1, _ONESTEP_MAX_NODES // max(num_particles, 1))
-    total, count = 0.0, 0
     for i in range(0, len(starts), per_batch):
-        chunk = starts[i : i + per_batch]
+        chunk = list(starts[i : i + per_batch])
         windows = torch.stack([position[s : s + frames] for s in chunk])  # [K, H+1, N, D]
         k = len(chunk)
         sequence = windows.permute(0, 2, 1, 3).reshape(k * num_particles, frames, dim)
         graph = torch.arange(k, device=position.device).repeat_interleave(num_particles)
         predicted = simulator.predict_positions(sequence, particle_type.repeat(k), batch=graph)
+        yield chunk, predicted.reshape(k, num_particles, dim)
+
+
+def onestep_mse(
+    simulator: LearnedSimulator, position: torch.Tensor, particle_type: torch.Tensor, stride: int = 10
+) -> float:
+    """Position MSE per coordinate of single-step predictions from ground-truth inputs (dynamic particles),
+    on every ``stride``-th input window (:func:`onestep_predictions`).
+
+    Args:
+        position: ``[T, N, D]`` ground truth; particle_type: ``[N]``.
+    """
+    frames = simulator.input_frames
+    starts = list(range(0, position.shape[0] - frames, max(stride, 1)))
+    if not starts:
+        return float("nan")
+    dynamic = particle_type != KINEMATIC_PARTICLE_ID
+    total, count = 0.0, 0
+    for chunk, predicted in onestep_predictions(simulator, position, particle_type, starts):
         target = position[torch.tensor(chunk, device=position.device) + frames]  # [K, N, D]
-        error = (predicted.reshape(k, num_particles, dim) - target) ** 2
+        error = (predicted - target) ** 2
         total += float(error[:, dynamic].sum())
         count += int(error[:, dynamic].numel())
     return total / max(count, 1)

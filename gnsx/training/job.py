@@ -90,13 +90,17 @@ def finished_result(results_path: Path) -> float | None:
     learning study's arms: their scores are the validation curve's); then NaN."""
     try:
         results = json.loads(results_path.read_text())
-        value = (results.get("test") or {}).get("rollout_mse")
-        value = float("nan") if value is None and results.get("evaluated") is False else float(value)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (OSError, ValueError):
         return None
     if results.get("status") != "ok":
         return None
-    return value if math.isfinite(value) or results.get("evaluated") is False else None
+    if results.get("evaluated") is False:
+        return float("nan")
+    try:
+        value = float(results["test"]["rollout_mse"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
 
 
 def run_dir_of(ckpt_path: str | None) -> Path | None:

@@ -114,7 +114,6 @@ def _train_and_evaluate(
 
         every_s = None if val_every_minutes is None else 60.0 * float(val_every_minutes)
         every_n_steps = None if every_s is not None else int(curve_every_n_steps)
-        record["curve_every"] = {"minutes": val_every_minutes, "steps": every_n_steps}
         callbacks.append(CurveValidation(clock, every_s, run_dir / "curve.jsonl", every_n_steps=every_n_steps,
                                          loss_every_n_steps=int(cfg.train.log_every_n_steps)))  # fmt: skip
         record["curve"] = str(run_dir / "curve.jsonl")
