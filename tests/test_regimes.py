@@ -13,8 +13,10 @@ from gnsx.evaluation.regimes import (
     IMPACT,
     POOL,
     UNLABELLED,
+    ballistic_onestep,
     classify,
     onestep_positions,
+    table,
     trajectory_sources,
 )
 
@@ -75,3 +77,25 @@ def test_one_step_predictions_start_from_true_frames():
     out = trajectory_sources(position, onestep, position, labels, input_frames=2)
     # Missing gravity costs |g|^2 / 2 per coordinate in flight, nothing at rest.
     assert out["onestep"]["flight"] == pytest.approx(float(G @ G) / 2) and out["onestep"]["pool"] == 0.0
+
+
+def test_the_baselines_one_step_error_is_what_departs_from_gravity():
+    position, types = _trajectory()
+    labels = classify(position, types, G)
+    onestep = ballistic_onestep(position, G)
+    assert np.isnan(onestep[:2]).all()
+    out = trajectory_sources(position, onestep, position, labels, input_frames=2)
+    # Exact in flight; at rest it adds gravity the floor takes away: |g|^2 / 2 per coordinate.
+    assert out["onestep"]["flight"] == pytest.approx(0.0, abs=1e-20)
+    assert out["onestep"]["pool"] == pytest.approx(float(G @ G) / 2)
+    # The table divides a model's one-step MSE by the baseline's, regime by regime.
+    half = {"pool": (0.5 * float(G @ G) / 2, 0.0), "flight": (0.0, 0.0), "impact": (1.0, 0.0)}
+    base = {"horizon": {"all": (1.0, 0.0)}, "rollout": {r: (1.0, 0.0) for r in half},
+            "share": {r: (1 / 3, 0.0) for r in half},
+            "onestep": {"pool": (out["onestep"]["pool"], 0.0), "flight": (0.0, 0.0), "impact": (2.0, 0.0)}}
+    model = base | {"onestep": half}
+    lines = table({"physics-free baseline": base, "model": model})
+    pool_row = next(line for line in lines if line.startswith("| model | pool"))
+    impact_row = next(line for line in lines if line.startswith("| model | impact"))
+    assert pool_row.endswith("| 0.5 |") and impact_row.endswith("| 0.5 |")
+    assert next(line for line in lines if line.startswith("| model | flight")).endswith("| – |")

@@ -55,6 +55,8 @@ FLIGHT_TOLERANCE = 0.1
 REST_FRAMES = 3.0
 #: Rollout horizons reported, in predicted frames; None is the whole rollout.
 HORIZONS = (10, 50, 100, None)
+#: The physics-free baseline's row label; the last column divides each model's one-step MSE by its.
+BASELINE_LABEL = "physics-free baseline"
 
 
 def classify(position: np.ndarray, particle_type: np.ndarray, gravity: np.ndarray) -> np.ndarray:
@@ -93,6 +95,18 @@ def onestep_positions(
     return out
 
 
+def ballistic_onestep(position: np.ndarray, gravity: np.ndarray) -> np.ndarray:
+    """``[T, N, D]`` the physics-free baseline's one step from every true frame pair: entry ``k + 1`` is
+    ``2 x_k - x_{k-1} + g`` (no walls: one step from true frames never reaches one); NaN for the first two.
+
+    Its one-step error is the true acceleration's departure from gravity, ``|a - g|^2``: the part of the motion a
+    model has to learn. A model's one-step MSE over the baseline's, per regime, is the share of that part it
+    has not learned."""
+    out = np.full(position.shape, np.nan)
+    out[2:] = 2 * position[1:-1] - position[:-2] + gravity
+    return out
+
+
 def _regime_mse(squared: np.ndarray, labels: np.ndarray) -> dict[str, float]:
     """Mean over particle-frames of ``squared [T, N]`` within each regime (NaN for an absent regime)."""
     out = {}
@@ -109,7 +123,8 @@ def trajectory_sources(
 
     Args:
         predicted: ``[T, N, D]`` a rollout whose first ``input_frames`` frames are the truth's.
-        onestep: ``[T, N, D]`` one-step predictions (:func:`onestep_positions`) or None (the baseline has none).
+        onestep: ``[T, N, D]`` one-step predictions (:func:`onestep_positions`, :func:`ballistic_onestep`) or
+            None.
         true: ``[T, N, D]``; labels: ``[T, N]`` (:func:`classify`).
     Returns:
         ``{"horizon": {h: mse}, "rollout": {regime: mse}, "onestep": {regime: mse}, "share": {regime: f}}``.
@@ -146,7 +161,7 @@ def model_sources(
     simulator: LearnedSimulator | None, trajectories: Sequence[dict], metadata: Metadata
 ) -> dict[str, Any]:
     """:func:`summarise` over ``trajectories`` (``{"position" [T, N, D], "particle_type" [N]}`` tensors) for a
-    model, or for the physics-free baseline when ``simulator`` is None (one input frame pair, its rollout only)."""
+    model, or for the physics-free baseline when ``simulator`` is None (one input frame pair)."""
     gravity = gravity_per_frame(metadata).numpy()
     rows = []
     for trajectory in trajectories:
@@ -156,7 +171,8 @@ def model_sources(
         if simulator is None:
             frames = 2  # the baseline reads one velocity
             predicted, _, _ = baseline_errors(position.numpy(), types.numpy(), frames, metadata, emd_every=0)
-            rows.append(trajectory_sources(predicted.astype(np.float64), None, true, labels, frames))
+            onestep = ballistic_onestep(true, gravity)
+            rows.append(trajectory_sources(predicted.astype(np.float64), onestep, true, labels, frames))
             continue
         frames = simulator.input_frames
         initial = position[:frames].transpose(0, 1)
@@ -176,7 +192,8 @@ def _fmt(pair: tuple[float, float]) -> str:
 
 
 def table(sources: dict[str, dict]) -> list[str]:
-    """Markdown: one table by horizon, one by regime (rollout and one step side by side)."""
+    """Markdown: one table by horizon, one by regime (rollout and one step side by side, and the one-step MSE
+    over the baseline's: the share of the non-gravitational acceleration a model has not learned)."""
     first = next(iter(sources.values()))
     horizons = list(first["horizon"])
     lines = ["| model | " + " | ".join(f"rollout MSE, first {h} frames" if h != "all" else "rollout MSE, all"
@@ -186,14 +203,18 @@ def table(sources: dict[str, dict]) -> list[str]:
         lines.append(f"| {name} | " + " | ".join(_fmt(src["horizon"][h]) for h in horizons) + " |")
     lines += [
         "",
-        "| model | regime | share of particle-frames | rollout MSE | one-step MSE |",
-        "|---|---|---|---|---|",
+        "| model | regime | share of particle-frames | rollout MSE | one-step MSE | one-step / baseline's |",
+        "|---|---|---|---|---|---|",
     ]
+    reference = sources.get(BASELINE_LABEL, {}).get("onestep")
     for name, src in sources.items():
         for regime in REGIMES:
             onestep = _fmt(src["onestep"][regime]) if "onestep" in src else "–"
+            share = "–"
+            if reference is not None and "onestep" in src and reference[regime][0] > 0:
+                share = f"{src['onestep'][regime][0] / reference[regime][0]:.3g}"
             lines.append(f"| {name} | {regime} | {src['share'][regime][0]:.2f} | {_fmt(src['rollout'][regime])} "
-                         f"| {onestep} |")  # fmt: skip
+                         f"| {onestep} | {share} |")  # fmt: skip
     return lines
 
 
@@ -216,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     metadata = load_metadata(args.data)
     trajectories = list(TrajectoryDataset(open_split(args.data, args.split, metadata), args.max_trajectories))
-    sources: dict[str, dict] = {"physics-free baseline": model_sources(None, trajectories, metadata)}
+    sources: dict[str, dict] = {BASELINE_LABEL: model_sources(None, trajectories, metadata)}
     for i, path in enumerate(args.checkpoints):
         simulator = load_simulator(path).eval()
         label = args.label[i] if i < len(args.label) else model_label(simulator) + f" ({path})"
