@@ -95,7 +95,7 @@ SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
 FIG9_MINI_DIR ?= multirun/fig9_mini/main
 RADIUS_MINI_DIR ?= multirun/radius_mini/main
-fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~5 h on 2 cores; resumable: rerun to continue), then the report
+fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~5 h on 2 cores; resumable: rerun to continue), then the report and the claims table
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
 	@# Cells finished in an earlier session and committed (docs/fig9/jobs/) are not trained again.
@@ -108,7 +108,13 @@ fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seed
 		|| exit 1; done
 	@# Every cell timed again together in this (now quiet) process: in-job timings ran beside another job.
 	$(PY) -m gnsx.evaluation.report.retime $(FIG9_MINI_DIR)
-	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR)
+	@# Finished cells' records (no checkpoints) go to docs/fig9/jobs/: committed, a later session skips them.
+	@for job in $(FIG9_MINI_DIR)/*/; do grep -qs '"status": "ok"' "$$job/results.json" || continue; \
+		dest=docs/fig9/jobs/$$(basename "$$job"); mkdir -p "$$dest"; \
+		cp "$$job"/results.json "$$dest"/; cp "$$job"/*.png "$$dest"/ 2>/dev/null || true; done
+	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR) --out docs/fig9 --wandb disabled
+	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/radius_0.035 \
+		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
 
 LEARNING_DIR ?= multirun/learning/main
 learning: install ## The learning study: 10 arms x 2 seeds, 20 min of one thread each (~4.5 h on 2 cores; resumable), then docs/learning's table and curves
