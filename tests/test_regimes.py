@@ -90,9 +90,12 @@ def test_the_baselines_one_step_error_is_what_departs_from_gravity():
     assert out["onestep"]["pool"] == pytest.approx(float(G @ G) / 2)
     # The table divides a model's one-step MSE by the baseline's, regime by regime.
     half = {"pool": (0.5 * float(G @ G) / 2, 0.0), "flight": (0.0, 0.0), "impact": (1.0, 0.0)}
-    base = {"horizon": {"all": (1.0, 0.0)}, "rollout": {r: (1.0, 0.0) for r in half},
-            "share": {r: (1 / 3, 0.0) for r in half},
-            "onestep": {"pool": (out["onestep"]["pool"], 0.0), "flight": (0.0, 0.0), "impact": (2.0, 0.0)}}
+    base = {
+        "horizon": {"all": (1.0, 0.0)},
+        "rollout": {r: (1.0, 0.0) for r in half},
+        "share": {r: (1 / 3, 0.0) for r in half},
+        "onestep": {"pool": (out["onestep"]["pool"], 0.0), "flight": (0.0, 0.0), "impact": (2.0, 0.0)},
+    }
     model = base | {"onestep": half}
     lines = table({"physics-free baseline": base, "model": model})
     pool_row = next(line for line in lines if line.startswith("| model | pool"))
