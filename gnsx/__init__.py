@@ -13,4 +13,6 @@ validation and checkpoint choice use the same scoring library, which is why eval
 :mod:`gnsx.perf` and :mod:`gnsx.study` are tools on top.
 """
 
+from gnsx.core import resolvers as _resolvers  # noqa: F401  (the configs' ${steps_fraction:...})
+
 __version__ = "0.1.0"

@@ -34,8 +34,8 @@ EXPECTED = {
     "paperlr": {
         "train.lr_init=0.0001",
         "train.lr_final=1e-06",
-        "train.lr_decay_start=14250",
-        "train.lr_decay_end=21375",
+        "train.lr_decay_start=${steps_fraction:0.625,${train.max_steps}}",  # 14,250 (resolved: the test below)
+        "train.lr_decay_end=${steps_fraction:0.9375,${train.max_steps}}",  # 21,375
     },  # fmt: skip
 }
 
@@ -114,3 +114,14 @@ def test_a_tiny_study_writes_curves_the_report_reads_and_a_rerun_skips_it(tmp_pa
     rerun = run()
     log = rerun.stdout + rerun.stderr
     assert rerun.returncode == 0 and log.count("finished earlier (no test evaluation): skipped") == 2
+
+
+def test_the_paper_schedule_keeps_its_shape_in_the_long_run():
+    """paperlr's decay points are fractions of the run: 14,250-21,375 of the study's 22,800 steps, 125,000-187,500
+    of the 200k long run (sweeps/learning_long.yaml), never the study's absolute steps."""
+    with initialize_config_dir(config_dir=str(SWEEPS), version_base="1.3"):
+        cfg = compose(config_name="learning_long",
+                      overrides=[f"hydra.searchpath=[file://{CONF}]", "learning_arm=paperlr"])  # fmt: skip
+    train = OmegaConf.to_container(cfg.train, resolve=True)
+    assert (train["max_steps"], train["lr_decay_start"], train["lr_decay_end"]) == (200_000, 125_000, 187_500)
+    assert (train["lr_init"], train["lr_final"]) == (1e-4, 1e-6)
