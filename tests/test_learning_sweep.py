@@ -38,6 +38,9 @@ EXPECTED = {
         "train.lr_decay_end=${steps_fraction:0.9375,${train.max_steps}}",  # 21,375
     },  # fmt: skip
 }
+#: Combination arms: two single arms' changes together, on the budget of the one whose network they use.
+COMBINED = {"paperlr_pairwise": ("paperlr", "pairwise")}
+EXPECTED |= {arm: set().union(*(EXPECTED[part] for part in parts)) for arm, parts in COMBINED.items()}
 
 
 def _compose(arm: str):
@@ -80,6 +83,10 @@ def test_the_arms_step_budgets_are_the_same_training_time():
         train = _compose(arm)["train"]
         if arm == "paperlr":  # the base arm's network and budget, another schedule
             assert train["max_steps"] == _compose("base")["train"]["max_steps"]
+            continue
+        if arm in COMBINED:  # the budget of the arm whose network it uses (a schedule costs nothing per step)
+            network = COMBINED[arm][-1]
+            assert train["max_steps"] == _compose(network)["train"]["max_steps"], arm
             continue
         rate = record["equalised"]["mean_steps_per_s"] if arm in record["equalised"]["arms"] else (
             record["arms"][arm]["steps_per_s"])  # fmt: skip
