@@ -117,7 +117,7 @@ fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seed
 		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
 
 LEARNING_DIR ?= multirun/learning/main
-learning: install ## The learning study: 10 arms x 2 seeds, 20 min of one thread each (~4.5 h on 2 cores; resumable), then docs/learning's table and curves
+learning: install ## The learning study: 10 single arms + 1 combination x 2 seeds, 20 min of one thread each (~5 h on 2 cores; resumable), then docs/learning's table and curves
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
 	@# Jobs finished in an earlier session and committed (docs/learning/jobs/: curves and records) are skipped.
