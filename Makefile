@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -131,8 +131,22 @@ learning-long: install ## The learning study's winner trained long: ARM=<arm> (s
 	@[ -n "$(ARM)" ] || { echo "set ARM=<arm of sweeps/learning_arm/>, e.g. make learning-long ARM=base"; exit 2; }
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
+	@# A run committed mid-way (docs/learning/long/<arm>/: its curve and checkpoints/last.ckpt) resumes here.
+	@[ -e $(LONG_DIR)/$(ARM) ] || [ ! -d docs/learning/long/$(ARM) ] || { mkdir -p $(LONG_DIR); \
+		cp -r docs/learning/long/$(ARM) $(LONG_DIR)/$(ARM); echo "resuming from docs/learning/long/$(ARM)"; }
 	$(PY) train.py --config-dir sweeps --config-name learning_long learning_arm=$(ARM) hydra.run.dir=$(LONG_DIR)/$(ARM) \
 		$$([ -f $(LONG_DIR)/$(ARM)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(LONG_DIR)/$(ARM)) $(ARGS)
+	@$(MAKE) --no-print-directory learning-long-keep ARM=$(ARM)
+
+learning-long-keep: install ## Copy a long run's curve, record and config (and, while unfinished, its last.ckpt) to docs/learning/long/ARM, to commit; then docs/learning/long_run.md
+	@[ -n "$(ARM)" ] && [ -d $(LONG_DIR)/$(ARM) ] || { echo "no run at $(LONG_DIR)/$(ARM): set ARM=<arm>"; exit 2; }
+	@dest=docs/learning/long/$(ARM); mkdir -p $$dest/.hydra $$dest/checkpoints; \
+	for f in curve.jsonl results.json; do [ -f $(LONG_DIR)/$(ARM)/$$f ] && cp $(LONG_DIR)/$(ARM)/$$f $$dest/; done; \
+	cp $(LONG_DIR)/$(ARM)/.hydra/*.yaml $$dest/.hydra/ 2>/dev/null; \
+	if grep -qs '"status": "ok"' $(LONG_DIR)/$(ARM)/results.json; then rm -rf $$dest/checkpoints; \
+	else cp $(LONG_DIR)/$(ARM)/checkpoints/last.ckpt $$dest/checkpoints/ && \
+		echo "unfinished: commit with git add -f $$dest/checkpoints/last.ckpt"; fi; echo "kept in $$dest"
+	$(PY) -m gnsx.evaluation.report.long_run docs/learning/long/*/ --out docs/learning
 
 radius-mini: install ## Connection-radius sweep (5 radii x seeds 0-1, 64/5, fig9-mini's recipe; ~1 h 20 min on 2 cores; resumable), then the report
 	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
