@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -125,6 +125,15 @@ learning: install ## The learning study: 10 single arms + 1 combination x 2 seed
 		[ -e "$(LEARNING_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(LEARNING_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name learning hydra.sweep.dir=$(LEARNING_DIR) $(ARGS)
 	$(PY) -m gnsx.evaluation.report.learning $(LEARNING_DIR) --out docs/learning --copy-jobs docs/learning/jobs --budget-minutes 20
+
+DEMO_CHOICE_DIR ?= multirun/demo_choice/main
+demo-choice: install ## The demo's model: as shipped vs the learning study's winner at the demo's budget (12,200 steps), 2 seeds, one thread each (~55 min; resumable), then docs/learning/demo_choice
+	@[ -f data/small/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small
+	@mkdir -p $(DEMO_CHOICE_DIR); for job in docs/learning/demo_choice/jobs/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(DEMO_CHOICE_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(DEMO_CHOICE_DIR)/"; done
+	$(PY) train.py -m --config-dir sweeps --config-name demo_choice hydra.sweep.dir=$(DEMO_CHOICE_DIR) $(ARGS)
+	$(PY) -m gnsx.evaluation.report.learning $(DEMO_CHOICE_DIR) --arm-key demo_arm --out docs/learning/demo_choice \
+		--copy-jobs docs/learning/demo_choice/jobs
 
 LONG_DIR ?= outputs/learning_long
 learning-long: install ## The learning study's winner trained long: ARM=<arm> (sweeps/learning_arm), 200k steps on one thread (~3.5 h; rerun to resume), scored on the test split beside the shipped weights

@@ -132,3 +132,27 @@ def test_the_paper_schedule_keeps_its_shape_in_the_long_run():
     train = OmegaConf.to_container(cfg.train, resolve=True)
     assert (train["max_steps"], train["lr_decay_start"], train["lr_decay_end"]) == (200_000, 125_000, 187_500)
     assert (train["lr_init"], train["lr_final"]) == (1e-4, 1e-6)
+
+
+def _compose_demo_choice(arm: str):
+    with initialize_config_dir(config_dir=str(SWEEPS), version_base="1.3"):
+        cfg = compose(
+            config_name="demo_choice", overrides=[f"hydra.searchpath=[file://{CONF}]", f"demo_arm={arm}"]
+        )
+    return OmegaConf.to_container(cfg, resolve=False)
+
+
+def test_the_demo_choice_pits_the_demo_as_shipped_against_the_study_winner():
+    """sweeps/demo_choice.yaml: its base arm is the demo's own model and recipe, its winner is the study's
+    paperlr arm exactly (on the demo's data), so the choice tests the winner and nothing else."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        demo = OmegaConf.to_container(compose(config_name="config"), resolve=False)
+    base, winner = _compose_demo_choice("base"), _compose_demo_choice("winner")
+    for key in ("model", "data"):
+        assert base[key] == demo[key]
+    for key in ("lr_init", "lr_final", "noise_std", "noise_decay", "mirror"):
+        assert base["train"][key] == demo["train"][key]
+    changes = set(config_changes(winner, _compose("paperlr")))
+    assert {c.partition("=")[0] for c in changes} <= {"data.trajectories", "data.trajectories.train",
+                                                      "data.trajectories.valid", "data.trajectories.test"}  # fmt: skip
+    assert base["train"]["max_steps"] == winner["train"]["max_steps"] == 12200

@@ -14,12 +14,12 @@ from gnsx.evaluation.report.learning import build, config_changes, load_jobs
 BASELINE = [1e-2, 2e-2, 4e-2, 8e-2]  # per validation trajectory
 
 
-def _job(sweep, arm, seed, factor, config, steps=(100, 200), area=0.8, status="ok"):
+def _job(sweep, arm, seed, factor, config, steps=(100, 200), area=0.8, status="ok", key="learning_arm"):
     """A job whose final error is ``factor`` x the baseline on every trajectory (times a seed wobble)."""
-    folder = sweep / f"learning_arm={arm},seed={seed}"
+    folder = sweep / f"{key}={arm},seed={seed}"
     (folder / ".hydra").mkdir(parents=True)
     (folder / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
-    results = {"status": status, "swept": [f"learning_arm={arm}", f"seed={seed}"], "steps_per_s": 20.0}
+    results = {"status": status, "swept": [f"{key}={arm}", f"seed={seed}"], "steps_per_s": 20.0}
     (folder / "results.json").write_text(json.dumps(results))
     curve = folder / "curve.jsonl"
     append_row(curve, {"kind": "baseline", "rollout_mse": sum(BASELINE) / 4, "rollout_mse_se": 0.0,
@@ -93,5 +93,20 @@ def test_a_missing_sweep_is_one_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no such sweep folder"):
         load_jobs(tmp_path / "nowhere")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(FileNotFoundError, match="no learning-study job"):
+    with pytest.raises(FileNotFoundError, match="no job swept over learning_arm"):
         load_jobs(tmp_path / "empty")
+
+
+def test_another_swept_group_names_the_arms(tmp_path):
+    """The demo's choice (sweeps/demo_choice.yaml) sweeps demo_arm: the same report reads it by that key."""
+    sweep = tmp_path / "sweep"
+    for seed in (0, 1):
+        _job(sweep, "base", seed, 0.5, BASE_CONFIG, key="demo_arm")
+        _job(sweep, "winner", seed, 0.25, BASE_CONFIG, key="demo_arm")
+    with pytest.raises(FileNotFoundError, match="learning_arm"):
+        load_jobs(sweep)
+    summary = build(sweep, tmp_path / "out", arm_key="demo_arm")
+    rows = {row["arm"]: row for row in summary["arms"]}
+    assert set(rows) == {"base", "winner"}
+    assert rows["winner"]["vs_base"][0] == pytest.approx(0.5)
+    assert "--arm-key demo_arm" in (tmp_path / "out" / "report.md").read_text()

@@ -57,8 +57,9 @@ def _override(overrides: Sequence[str], key: str, default: str | None = None) ->
     return default
 
 
-def load_jobs(sweep_dir: str | Path) -> dict[str, dict[int, dict[str, Any]]]:
-    """The sweep's jobs with a curve, by arm and seed: ``{"dir", "results", "curve", "config"}``.
+def load_jobs(sweep_dir: str | Path, arm_key: str = "learning_arm") -> dict[str, dict[int, dict[str, Any]]]:
+    """The sweep's jobs with a curve, by arm (the value of the swept ``arm_key``) and seed:
+    ``{"dir", "results", "curve", "config"}``.
 
     Raises:
         FileNotFoundError: no folder, or no job with a ``curve.jsonl`` in it (named).
@@ -70,7 +71,7 @@ def load_jobs(sweep_dir: str | Path) -> dict[str, dict[int, dict[str, Any]]]:
     for folder in sorted(p for p in sweep_dir.iterdir() if (p / "results.json").is_file()):
         results = json.loads((folder / "results.json").read_text())
         overrides = results.get("swept") or results.get("overrides") or []
-        arm = _override(overrides, "learning_arm")
+        arm = _override(overrides, arm_key)
         if arm is None or not (folder / "curve.jsonl").is_file():
             continue
         config_path = folder / ".hydra" / "config.yaml"
@@ -79,7 +80,9 @@ def load_jobs(sweep_dir: str | Path) -> dict[str, dict[int, dict[str, Any]]]:
         curve = read_curve(folder / "curve.jsonl")
         arms.setdefault(arm, {})[seed] = {"dir": folder, "results": results, "curve": curve, "config": config}
     if not arms:
-        raise FileNotFoundError(f"{sweep_dir}: no learning-study job with a curve.jsonl (make learning)")
+        raise FileNotFoundError(
+            f"{sweep_dir}: no job swept over {arm_key} with a curve.jsonl (make learning)"
+        )
     order = [BASE_ARM] if BASE_ARM in arms else []
     return {arm: arms[arm] for arm in order + sorted(a for a in arms if a != BASE_ARM)}
 
@@ -293,11 +296,12 @@ def build(
     out: str | Path,
     jobs_dest: str | Path | None = None,
     budget_minutes: float | None = None,
+    arm_key: str = "learning_arm",
 ) -> dict[str, Any]:
     """Write ``curves.png``, ``report.md`` and ``learning.json`` into ``out``; returns the summary."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    arms = load_jobs(sweep_dir)
+    arms = load_jobs(sweep_dir, arm_key)
     base_jobs = arms.get(BASE_ARM)
     base_config = next(iter(base_jobs.values()))["config"] if base_jobs else {}
     changes = {
@@ -313,6 +317,7 @@ def build(
         f"Raw network, final validation point of each arm, {trajectories} validation trajectories. Rebuilt with",
         f"`python -m gnsx.evaluation.report.learning {sweep_dir} --out {out}"
         + ("" if budget_minutes is None else f" --budget-minutes {budget_minutes:g}")
+        + ("" if arm_key == "learning_arm" else f" --arm-key {arm_key}")
         + "`.",
         "'x baseline': the physics-free baseline's rollout MSE over the arm's, '/ base': the arm's over the base",
         "arm's; both geometric means over trajectories (each trajectory's error the geometric mean of its",
@@ -343,8 +348,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="keep each finished job's curve, record and config here (no checkpoints)")  # fmt: skip
     parser.add_argument("--budget-minutes", type=float, default=None, metavar="M",
                         help="time axis: M x step / max_steps (the equal budget); default: measured")  # fmt: skip
+    parser.add_argument("--arm-key", default="learning_arm", metavar="KEY",
+                        help="the swept group naming the arms (e.g. demo_arm); default: learning_arm")  # fmt: skip
     args = parser.parse_args(argv)
-    build(args.sweep, args.out, args.copy_jobs, args.budget_minutes)
+    build(args.sweep, args.out, args.copy_jobs, args.budget_minutes, args.arm_key)
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out} (curves.png, report.md, learning.json)")
     return 0
