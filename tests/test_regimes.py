@@ -16,6 +16,8 @@ from gnsx.evaluation.regimes import (
     ballistic_onestep,
     classify,
     onestep_positions,
+    paired_ratios,
+    paired_table,
     table,
     trajectory_sources,
 )
@@ -102,3 +104,35 @@ def test_the_baselines_one_step_error_is_what_departs_from_gravity():
     impact_row = next(line for line in lines if line.startswith("| model | impact"))
     assert pool_row.endswith("| 0.5 |") and impact_row.endswith("| 0.5 |")
     assert next(line for line in lines if line.startswith("| model | flight")).endswith("| – |")
+
+
+def _rows(scale: float, wobble: float = 1.0, n: int = 6):
+    """Per-trajectory rows (trajectory_sources' shape) whose errors are ``scale`` x a made-up reference,
+    times ``wobble`` on every other trajectory."""
+    rows = []
+    for i in range(n):
+        factor = scale * (wobble if i % 2 else 1 / wobble) * (i + 1)
+        figures = {key: factor * 1e-3 for key in ("flight", "impact", "pool")}
+        rows.append({"horizon": {"10": factor * 1e-6, "all": factor * 1e-2}, "rollout": dict(figures),
+                     "onestep": dict(figures), "share": {"flight": 0.2, "impact": 0.7, "pool": 0.1}})  # fmt: skip
+    return rows
+
+
+def test_a_model_is_paired_with_the_reference_trajectory_by_trajectory():
+    """Half the reference's error on every trajectory reads 0.5x with no spread, whatever the trajectories'
+    own scale; a model that wobbles around the reference is a tie; different trajectories are refused."""
+    reference = _rows(1.0)
+    halved = paired_ratios(_rows(0.5), reference)
+    assert set(halved) == {"horizon", "rollout", "onestep"}
+    for group in halved.values():
+        for centre, low, high, n in group.values():
+            assert centre == pytest.approx(0.5) and low == pytest.approx(0.5) and high == pytest.approx(0.5)
+            assert n == 6
+    wobbling = paired_ratios(_rows(1.0, wobble=1.5), reference)
+    centre, low, high, _ = wobbling["horizon"]["all"]
+    assert centre == pytest.approx(1.0) and low < 1 < high
+    text = "\n".join(paired_table({"new": halved, "wobbly": wobbling}, "shipped"))
+    assert "0.5x [0.5, 0.5]" in text and "(tie)" in text.split("| wobbly |")[1]
+    assert "(tie)" not in text.split("| new |")[1].split("\n")[0]
+    with pytest.raises(ValueError, match="same trajectories"):
+        paired_ratios(_rows(0.5, n=5), reference)

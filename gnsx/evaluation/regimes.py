@@ -20,8 +20,13 @@ For each model, and for the physics-free baseline:
   the regime of the frame the step starts from (its true acceleration is what the step predicts).
 
 Each figure is a mean over trajectories with its standard error; the share column is the regime's share of
-the particle-frames. One-step errors are ~1e-8 where rollouts reach 1e-2: a model that is good one step at
-a time can still lose a regime in the rollout, which is what the two columns side by side show.
+the particle-frames. One-step errors are ~1e-8 where rollouts reach 1e-2: a model that is good one step at a
+time can still lose a regime in the rollout, which is what the two columns side by side show.
+
+With two checkpoints or more, a third table pairs every later model with the first on the same trajectories:
+its error over the first's per horizon and regime, the geometric mean over trajectories with a 95% t interval
+(an interval containing 1: the two cannot be told apart there). Pass the reference first, e.g. the shipped
+weights and then a new model.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ from gnsx.core.cli import run_main
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.data.metadata import Metadata
 from gnsx.evaluation.scoring import baseline_errors, gravity_per_frame, horizon_mse, onestep_predictions
-from gnsx.evaluation.spread import mean_se
+from gnsx.evaluation.spread import geometric_mean_interval, interval_contains_one, mean_se
 from gnsx.model.rollout import rollout
 from gnsx.model.simulator import LearnedSimulator
 
@@ -157,11 +162,11 @@ def summarise(rows: Sequence[dict]) -> dict[str, Any]:
     return out
 
 
-def model_sources(
+def model_rows(
     simulator: LearnedSimulator | None, trajectories: Sequence[dict], metadata: Metadata
-) -> dict[str, Any]:
-    """:func:`summarise` over ``trajectories`` (``{"position" [T, N, D], "particle_type" [N]}`` tensors) for a
-    model, or for the physics-free baseline when ``simulator`` is None (one input frame pair)."""
+) -> list[dict[str, Any]]:
+    """:func:`trajectory_sources` of every trajectory (``{"position" [T, N, D], "particle_type" [N]}`` tensors)
+    for a model, or for the physics-free baseline when ``simulator`` is None (one input frame pair)."""
     gravity = gravity_per_frame(metadata).numpy()
     rows = []
     for trajectory in trajectories:
@@ -181,7 +186,42 @@ def model_sources(
         predicted = np.concatenate([true[:frames], rolled.astype(np.float64)])
         onestep = onestep_positions(simulator, position, types)
         rows.append(trajectory_sources(predicted, onestep, true, labels, frames))
-    return summarise(rows)
+    return rows
+
+
+def model_sources(
+    simulator: LearnedSimulator | None, trajectories: Sequence[dict], metadata: Metadata
+) -> dict[str, Any]:
+    """:func:`summarise` of :func:`model_rows`: mean ± SE over the trajectories."""
+    return summarise(model_rows(simulator, trajectories, metadata))
+
+
+def paired_ratios(rows: Sequence[dict], reference: Sequence[dict]) -> dict[str, dict[str, tuple]]:
+    """A model's error over a reference model's on the same trajectories, for every figure of
+    :func:`trajectory_sources` but the shares.
+
+    Args:
+        rows, reference: per-trajectory rows of the two models (:func:`model_rows`), same trajectories in the
+            same order.
+    Returns:
+        ``{group: {key: (geometric mean, low, high, n)}}`` (:func:`~gnsx.evaluation.spread.geometric_mean_interval`;
+        a trajectory where either error is absent or zero is left out).
+    """
+    if len(rows) != len(reference):
+        raise ValueError(
+            f"paired ratios need the same trajectories: {len(rows)} rows against {len(reference)}"
+        )
+    out: dict[str, dict[str, tuple]] = {}
+    for group in ("horizon", "rollout", "onestep"):
+        if group not in rows[0] or group not in reference[0]:
+            continue
+        out[group] = {}
+        for key in rows[0][group]:
+            mine = np.array([row[group][key] for row in rows], dtype=np.float64)
+            theirs = np.array([row[group][key] for row in reference], dtype=np.float64)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out[group][key] = geometric_mean_interval(mine / theirs)
+    return out
 
 
 def _fmt(pair: tuple[float, float]) -> str:
@@ -218,6 +258,37 @@ def table(sources: dict[str, dict]) -> list[str]:
     return lines
 
 
+def _ratio(entry: tuple) -> str:
+    centre, low, high, _ = entry
+    if not np.isfinite(centre):
+        return "–"
+    if not (np.isfinite(low) and np.isfinite(high)):
+        return f"{centre:.3g}x"
+    tie = " (tie)" if interval_contains_one(low, high) else ""
+    return f"{centre:.3g}x [{low:.3g}, {high:.3g}]{tie}"
+
+
+def paired_table(ratios: dict[str, dict[str, dict]], reference: str) -> list[str]:
+    """Markdown: each model's error over ``reference``'s (:func:`paired_ratios`), by horizon, then by regime
+    for the rollout and the one step."""
+    if not ratios:
+        return []
+    first = next(iter(ratios.values()))
+    horizons = list(first["horizon"])
+    lines = [f"Paired over trajectories: each model's error over {reference}'s, geometric mean [95%]; (tie): the",
+             "interval contains 1.", "",
+             "| model | " + " | ".join(f"first {h} frames" if h != "all" else "whole rollout" for h in horizons)
+             + " | " + " | ".join(f"{r} rollout" for r in REGIMES) + " | "
+             + " | ".join(f"{r} one-step" for r in REGIMES) + " |",
+             "|---|" + "---|" * (len(horizons) + 2 * len(REGIMES))]  # fmt: skip
+    for name, ratio in ratios.items():
+        cells = [_ratio(ratio["horizon"][h]) for h in horizons]
+        cells += [_ratio(ratio["rollout"][r]) for r in REGIMES]
+        cells += [_ratio(ratio["onestep"][r]) if "onestep" in ratio else "–" for r in REGIMES]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from gnsx.data.datamodule import TrajectoryDataset
     from gnsx.data.store import load_metadata, open_split
@@ -237,21 +308,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     metadata = load_metadata(args.data)
     trajectories = list(TrajectoryDataset(open_split(args.data, args.split, metadata), args.max_trajectories))
-    sources: dict[str, dict] = {BASELINE_LABEL: model_sources(None, trajectories, metadata)}
+    rows: dict[str, list[dict]] = {BASELINE_LABEL: model_rows(None, trajectories, metadata)}
     for i, path in enumerate(args.checkpoints):
         simulator = load_simulator(path).eval()
         label = args.label[i] if i < len(args.label) else model_label(simulator) + f" ({path})"
-        sources[label] = model_sources(simulator, trajectories, metadata)
+        rows[label] = model_rows(simulator, trajectories, metadata)
+    sources = {label: summarise(model) for label, model in rows.items()}
+    models = list(rows)[1:]  # the checkpoints, in order: the first is the reference
+    ratios = {label: paired_ratios(rows[label], rows[models[0]]) for label in models[1:]}
     lines = [f"# Where the error comes from: {args.split} split of {args.data}, {len(trajectories)} trajectories",
              "", "Raw network (walls and ramps only). Command: `python -m gnsx.evaluation.regimes "
              + " ".join(str(p) for p in args.checkpoints) + f" --data {args.data} --split {args.split}`.",
              "", *table(sources), ""]  # fmt: skip
+    if ratios:
+        lines += [*paired_table(ratios, models[0]), ""]
     text = "\n".join(lines)
     print(text)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "regimes.md").write_text(text)
-        write_json(args.out / "regimes.json", json.loads(json.dumps(sources, default=list)))
+        record = {"sources": sources, "paired_with": models[0] if ratios else None, "paired": ratios}
+        write_json(args.out / "regimes.json", json.loads(json.dumps(record, default=list)))
     return 0
 
 
