@@ -45,7 +45,7 @@ from gnsx.evaluation.regimes import REGIMES, classify
 from gnsx.evaluation.sensitivity import dataset_recipe
 from gnsx.mpm.generate import one_thread, scene_solver, split_scene
 from gnsx.mpm.presets import Preset, get_preset
-from gnsx.mpm.solver import _SURFACE_NODE_FRACTION, MLSMPMSolver, SolverSettings
+from gnsx.mpm.solver import SURFACE_NODE_FRACTION, MLSMPMSolver, SolverSettings
 
 #: Variant name -> which estimate replaces v, C and J (None: the true one).
 VARIANTS = {
@@ -102,7 +102,7 @@ def density_volume_ratio(x: np.ndarray, settings: SolverSettings, spacing: float
     The particles' mass is scattered to the grid with the solver's quadratic B-splines and gathered back:
     a particle inside water at rest gathers ``rho dx^2``, so ``J = rho dx^2 / gathered``. Near a free surface
     the gathered mass reads low for want of neighbours, not for expansion: a particle any of whose nine nodes
-    is not covered by water (mass below the solver's ``_SURFACE_NODE_FRACTION`` of the rest mass) gets 1.
+    is not covered by water (mass below the solver's ``SURFACE_NODE_FRACTION`` of the rest mass) gets 1.
     """
     s, g = settings, settings.grid_nodes
     xg = (np.asarray(x, np.float64) - s.grid_origin) / s.dx
@@ -115,7 +115,7 @@ def density_volume_ratio(x: np.ndarray, settings: SolverSettings, spacing: float
     np.add.at(mass, nodes.ravel(), (weights * spacing**2 * s.density).ravel())
     rest = s.density * s.dx**2
     gathered = (weights * mass[nodes]).sum(0)
-    covered = (mass[nodes] >= _SURFACE_NODE_FRACTION * rest).all(0)
+    covered = (mass[nodes] >= SURFACE_NODE_FRACTION * rest).all(0)
     return np.where(covered, rest / gathered, 1.0)
 
 

@@ -48,7 +48,7 @@ _GRID_PAD = 2
 #: A collider node is one-sided when at least this fraction of its (signed) mass comes from one side.
 _ONE_SIDED_FRACTION = 0.5
 #: A node with less mass than this fraction of water at rest's is not covered by water.
-_SURFACE_NODE_FRACTION = 0.5
+SURFACE_NODE_FRACTION = 0.5
 #: Nodes within this many cells of an uncovered node do not count as covered (see _volume_correction).
 _SURFACE_EROSION = 2
 #: Distance (in cells) from the ramp's line at which a particle pushed back across a ramp is placed.
@@ -451,7 +451,7 @@ class MLSMPMSolver:
         """
         g, reach = self._g, _SURFACE_EROSION
         claimed = torch.zeros_like(mass).index_add_(0, idx, (wts * (self._p_volume * self._J)).view(-1))
-        covered = (mass >= _SURFACE_NODE_FRACTION * self._rest_node_mass).to(mass.dtype).view(1, 1, g, g)
+        covered = (mass >= SURFACE_NODE_FRACTION * self._rest_node_mass).to(mass.dtype).view(1, 1, g, g)
         interior = -torch.nn.functional.max_pool2d(-covered, 2 * reach + 1, stride=1, padding=reach)
         interior = interior.view(-1) > 0.5  # [G*G] bool
         count = interior.sum()

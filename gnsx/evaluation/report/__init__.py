@@ -32,7 +32,7 @@ from gnsx.evaluation.report.jobs import (
     AXES,
     AXIS_LABELS,
     Job,
-    _job_config,
+    job_config,
     load_job,
     load_sweep,
     speed_source,
@@ -138,7 +138,7 @@ def build_report(
     outputs["markdown"].write_text(outputs["markdown"].read_text().rstrip("\n") + "\n\n" + "\n".join(extra))
     outputs["csv"] = write_csv(rows, out / "results.csv")
     if project is None:
-        project = _job_config(jobs[0].folder).get("logger", {}).get("project", "gnsx")
+        project = job_config(jobs[0].folder).get("logger", {}).get("project", "gnsx")
     wandb_dir = log_wandb_table(jobs, rows, pictures, out, project, wandb_mode)
     if wandb_dir is not None:
         outputs["wandb"] = wandb_dir

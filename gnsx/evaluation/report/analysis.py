@@ -21,7 +21,7 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from gnsx.evaluation.report.jobs import Job, _number, speed_source, split_seeds, swept_axes
+from gnsx.evaluation.report.jobs import Job, finite_or_none, speed_source, split_seeds, swept_axes
 from gnsx.evaluation.spread import TIED, compare
 
 
@@ -42,7 +42,7 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 
 def best_job(jobs: Sequence[Job], key: str = "rollout_mse") -> Job | None:
     """The successful job with the lowest mean test error ``key`` (None when there is none)."""
-    candidates = [j for j in jobs if j.ok and _number(j.spread(key)[0]) is not None]
+    candidates = [j for j in jobs if j.ok and finite_or_none(j.spread(key)[0]) is not None]
     return min(candidates, key=lambda j: j.spread(key)[0]) if candidates else None
 
 
@@ -69,7 +69,7 @@ def versus_reference(
         return out
     best_mean, best_se = best.spread(key)
     for job in jobs:
-        if not job.ok or _number(job.spread(key)[0]) is None:
+        if not job.ok or finite_or_none(job.spread(key)[0]) is None:
             continue
         if job is best:
             out[id(job)] = (own, None)
@@ -131,7 +131,7 @@ def pick_for_budget(jobs: Sequence[Job], budget: float, key: str = "rollout_mse"
     timed = [
         j
         for j in jobs
-        if j.ok and j.ms_per_frame(source) is not None and _number(j.spread(key)[0]) is not None
+        if j.ok and j.ms_per_frame(source) is not None and finite_or_none(j.spread(key)[0]) is not None
     ]
     timed.sort(key=lambda j: j.ms_per_frame(source))
     within = [j for j in timed if j.spread(key)[0] <= budget]
@@ -164,7 +164,7 @@ def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
         lines.append(
             "**No model stays within the budget.**"
             + (
-                f" The lowest {what} is {closest.label(keys)}'s, {_with_se(*closest.spread(result.key))}."
+                f" The lowest {what} is {closest.label(keys)}'s, {mean_se_text(*closest.spread(result.key))}."
                 if closest
                 else ""
             )
@@ -172,8 +172,8 @@ def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
         return lines
     ms = pick.ms_per_frame(result.source)
     lines.append(
-        f"**Pick: {pick.label(keys)}**: {ms:.3g} ms/frame, {what} {_with_se(*pick.spread(result.key))}, the"
-        " fastest model within the budget."
+        f"**Pick: {pick.label(keys)}**: {ms:.3g} ms/frame, {what} {mean_se_text(*pick.spread(result.key))},"
+        " the fastest model within the budget."
     )
     verdict, method = result.versus_best or (None, None)
     best = result.best
@@ -188,7 +188,8 @@ def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
             verdict, "cannot be compared with (no spread recorded)"
         )
         line = (
-            f"Its {what} {told} the best model's ({best.label(keys)}, {_with_se(*best.spread(result.key))})"
+            f"Its {what} {told} the best model's"
+            f" ({best.label(keys)}, {mean_se_text(*best.spread(result.key))})"
         )
         if result.paired is not None and math.isfinite(result.paired["ratio"]):
             paired = result.paired
@@ -206,13 +207,15 @@ def budget_lines(result: BudgetPick, keys: Sequence[str]) -> list[str]:
     return lines
 
 
-def _with_se(mean: float | None, se: float | None, fmt: str = ".2e") -> str:
+def mean_se_text(mean: float | None, se: float | None, fmt: str = ".2e") -> str:
+    """``mean`` formatted with ``fmt``, then ``" ± se"`` when ``se`` is known; ``"n/a"`` when ``mean`` is None."""
     if mean is None:
         return "n/a"
     return f"{mean:{fmt}} ± {se:.1e}" if se is not None else f"{mean:{fmt}}"
 
 
-def _ratio_text(ratio: float | None, lo: float | None, hi: float | None) -> str:
+def ratio_text(ratio: float | None, lo: float | None, hi: float | None) -> str:
+    """A ratio as ``"1.23x [lo, hi]"`` (the interval only when both bounds are known), ``"n/a"`` when None."""
     if ratio is None:
         return "n/a"
     return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else f"{ratio:.2f}x"
@@ -225,7 +228,7 @@ def seed_groups(jobs: Sequence[Job], key: str = "rollout_mse") -> list[dict]:
     lowest seed's standard error over trajectories)}``, cells in the order of their first job."""
     cells: dict[tuple, list[Job]] = {}
     for job in jobs:
-        if job.ok and _number(job.spread(key)[0]) is not None:
+        if job.ok and finite_or_none(job.spread(key)[0]) is not None:
             cells.setdefault(job.cell, []).append(job)
     out = []
     for members in cells.values():
@@ -258,7 +261,7 @@ def cells_against_seeds(jobs: Sequence[Job], key: str = "rollout_mse") -> dict |
     from scipy import stats
 
     groups = seed_groups(jobs, key)
-    primary = [_number(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
+    primary = [finite_or_none(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
     primary = [math.log10(v) for v in primary if v is not None and v > 0]
     if len(primary) < 2 or not groups:
         return None
@@ -302,7 +305,9 @@ def axis_trends(jobs: Sequence[Job], key: str = "rollout_mse") -> dict | None:
 
     axes = [k for k in swept_axes(jobs) if k in TREND_UNITS]
     points = [
-        (j, _number(j.spread(key)[0])) for j in jobs if j.ok and all(getattr(j, k) is not None for k in axes)
+        (j, finite_or_none(j.spread(key)[0]))
+        for j in jobs
+        if j.ok and all(getattr(j, k) is not None for k in axes)
     ]
     points = [(j, v) for j, v in points if v is not None and v > 0]
     terms = len(axes) + 1

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from gnsx.core.errors import DataError
-from gnsx.evaluation.report.analysis import _ratio_text, cells_against_seeds
-from gnsx.evaluation.report.jobs import Job, _number, load_sweep
+from gnsx.evaluation.report.analysis import cells_against_seeds, ratio_text
+from gnsx.evaluation.report.jobs import Job, finite_or_none, load_sweep
 from gnsx.evaluation.spread import geometric_mean_interval, mean_se
 
 #: The results.csv columns a grid needs.
@@ -44,7 +44,7 @@ def merge_rows(row_lists: Sequence[Sequence[dict]], keys=("rollout_mse", "baseli
     shared = sorted(set.intersection(*(set(table) for table in tables))) if tables else []
     out = []
     for t in shared:
-        values = {k: [_number(table[t].get(k)) for table in tables] for k in keys}
+        values = {k: [finite_or_none(table[t].get(k)) for table in tables] for k in keys}
         kept = {k: v for k, v in values.items() if all(x is not None and x > 0 for x in v)}
         out.append({"trajectory": t, **{k: float(np.exp(np.mean(np.log(v)))) for k, v in kept.items()}})
     return out
@@ -77,15 +77,25 @@ def _cell(key: tuple, row: dict, jobs: list[Job]) -> Cell:
     rows, n = merge_rows([j.rows for j in jobs]), len(jobs)
     ms = [v for j in jobs if (v := j.ms_per_frame("bench")) is not None]
     mb = [v for j in jobs if (v := j.memory_mb("bench")) is not None]
-    ms = float(np.mean(ms)) if ms else _number(row["bench_ms_per_frame"])
-    mb = float(np.mean(mb)) if mb else _number(row["bench_peak_mb"])
+    ms = float(np.mean(ms)) if ms else finite_or_none(row["bench_ms_per_frame"])
+    mb = float(np.mean(mb)) if mb else finite_or_none(row["bench_peak_mb"])
     if n > 1:
         mse, se = mean_se(j.spread("rollout_mse")[0] for j in jobs)
         ratios = [r["baseline_mse"] / r["rollout_mse"] for r in rows if len(r) == 3]  # both keys kept
         return Cell(*key, row, n, rows, mse, se, geometric_mean_interval(ratios)[:3], ms, mb)
-    baseline = tuple(_number(row[c]) for c in ("baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi"))
+    baseline = tuple(
+        finite_or_none(row[c]) for c in ("baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi")
+    )
     return Cell(
-        *key, row, 1, rows, _number(row["rollout_mse"]), _number(row["rollout_mse_se"]), baseline, ms, mb
+        *key,
+        row,
+        1,
+        rows,
+        finite_or_none(row["rollout_mse"]),
+        finite_or_none(row["rollout_mse_se"]),
+        baseline,
+        ms,
+        mb,
     )
 
 
@@ -135,7 +145,7 @@ def load_grid(folder: str | Path) -> Grid:
         seeds.setdefault(_key(job.latent_size, job.mp_steps, job.radius), []).append(job)
     cells = []
     for row in rows:
-        key = _key(row["latent_size"], row["mp_steps"], _number(row["radius"]))
+        key = _key(row["latent_size"], row["mp_steps"], finite_or_none(row["radius"]))
         cells.append(_cell(key, row, seeds.get(key, [])))
     sources = [str(table)] + ([f"{folder / 'jobs'}/*/results.json"] if every else [])
     return Grid(folder, cells, cells_against_seeds(every) if every else None, sources)
@@ -167,7 +177,7 @@ def _values(v: dict | None) -> list[str]:
     fmt = lambda x, spec=".1f": format(x, spec) if x else "n/a"
     mse = fmt(v["mse"], ".2e") + (f" ± {v['se']:.1e}" if v["se"] else "")
     mse += f" ({v['seeds']} seeds)" if v["seeds"] > 1 else ""
-    return [mse, _ratio_text(*v["baseline"]), fmt(v["ms"]), fmt(v["mb"])]
+    return [mse, ratio_text(*v["baseline"]), fmt(v["ms"]), fmt(v["mb"])]
 
 
 def side_by_side_lines(table: Sequence[dict], labels: Sequence[str]) -> list[str]:

@@ -58,7 +58,7 @@ from scipy import stats
 from gnsx.core.atomic import write_json
 from gnsx.core.cli import run_main
 from gnsx.core.errors import DataError
-from gnsx.evaluation.report.analysis import _ratio_text, pareto_front
+from gnsx.evaluation.report.analysis import pareto_front, ratio_text
 from gnsx.evaluation.report.cells import (
     Cell,
     Grid,
@@ -129,7 +129,7 @@ def _paired(a: Cell, b: Cell) -> dict | None:
 
 
 def _x(result: dict | None) -> str:
-    return _ratio_text(result["ratio"], result["lo"], result["hi"]) if result else "n/a (no rows)"
+    return ratio_text(result["ratio"], result["lo"], result["hi"]) if result else "n/a (no rows)"
 
 
 def _gate(verdict: str, grid: Grid) -> tuple[str, str]:

@@ -94,38 +94,38 @@ class Job:
         return self.status == "ok"
 
     def ms_per_frame(self, source: str) -> float | None:
-        return _number((self.bench if source == "bench" else self.test).get("ms_per_frame"))
+        return finite_or_none((self.bench if source == "bench" else self.test).get("ms_per_frame"))
 
     def memory_mb(self, source: str) -> float | None:
-        return _number((self.bench if source == "bench" else self.test).get("peak_memory_mb"))
+        return finite_or_none((self.bench if source == "bench" else self.test).get("peak_memory_mb"))
 
     @property
     def rollout_mse(self) -> float | None:
-        return _number(self.test.get("rollout_mse"))
+        return finite_or_none(self.test.get("rollout_mse"))
 
     def spread(self, key: str) -> tuple[float | None, float | None]:
         """``(mean, standard error)`` of a test error over trajectories: the summary's ``key`` and
         ``<key>_se``, else computed from the per-trajectory rows (None where unknown)."""
-        mean, se = _number(self.test.get(key)), _number(self.test.get(f"{key}_se"))
+        mean, se = finite_or_none(self.test.get(key)), finite_or_none(self.test.get(f"{key}_se"))
         if se is None and self.rows:
             row_mean, row_se = mean_se(row.get(key) for row in self.rows)
-            mean = mean if mean is not None else _number(row_mean)
-            se = _number(row_se)
+            mean = mean if mean is not None else finite_or_none(row_mean)
+            se = finite_or_none(row_se)
         return mean, se
 
     def baseline_ratio(self) -> tuple[float | None, float | None, float | None]:
         """``(ratio, low, high)``: the geometric mean over test trajectories of ``baseline_mse / rollout_mse``
         and its 95% interval (from the summary, else the rows); without either, the ratio of the means and no
         interval. None where unknown."""
-        geomean = _number(self.test.get("baseline_ratio_geomean"))
+        geomean = finite_or_none(self.test.get("baseline_ratio_geomean"))
         if geomean is not None:
-            return (geomean, _number(self.test.get("baseline_ratio_geomean_lo")),
-                    _number(self.test.get("baseline_ratio_geomean_hi")))  # fmt: skip
+            return (geomean, finite_or_none(self.test.get("baseline_ratio_geomean_lo")),
+                    finite_or_none(self.test.get("baseline_ratio_geomean_hi")))  # fmt: skip
         ratios = [_ratio(row.get("baseline_mse"), row.get("rollout_mse")) for row in self.rows]
         geomean, lo, hi, n = geometric_mean_interval(ratios)
         if n:
-            return geomean, _number(lo), _number(hi)
-        ratio = _number(self.test.get("baseline_ratio"))
+            return geomean, finite_or_none(lo), finite_or_none(hi)
+        ratio = finite_or_none(self.test.get("baseline_ratio"))
         if ratio is None:
             ratio = _ratio(self.test.get("baseline_mse"), self.rollout_mse)
         return ratio, None, None
@@ -143,7 +143,7 @@ class Job:
         return "/".join(parts) if parts else (self.name or f"job {self.job}")
 
 
-def _number(value: Any) -> float | None:
+def finite_or_none(value: Any) -> float | None:
     """A finite float, or None (missing, null, NaN)."""
     try:
         number = float(value)
@@ -154,11 +154,11 @@ def _number(value: Any) -> float | None:
 
 def _ratio(numerator: Any, denominator: Any) -> float | None:
     """``numerator / denominator`` of two positive finite numbers, else None."""
-    a, b = _number(numerator), _number(denominator)
+    a, b = finite_or_none(numerator), finite_or_none(denominator)
     return a / b if a is not None and b is not None and a >= 0 and b > 0 else None
 
 
-def _job_config(folder: Path) -> dict:
+def job_config(folder: Path) -> dict:
     """The job's composed config from Hydra's ``.hydra/config.yaml`` (empty when absent)."""
     path = folder / ".hydra" / "config.yaml"
     if not path.is_file():
@@ -195,7 +195,7 @@ def load_job(folder: Path) -> Job:
         status, error = INTERRUPTED, interrupted_reason(results)
     elif status == "running":
         status, error = "failed", "did not finish (killed, out of memory or timed out?)"
-    config = _job_config(folder)
+    config = job_config(folder)
     model_cfg = config.get("model", {})
     model = results.get("model_config") or {}
 
@@ -221,8 +221,8 @@ def load_job(folder: Path) -> Job:
         radius=pick("radius", float),
         parameters=results.get("parameters"),
         train_steps=results.get("train_steps"),
-        steps_per_s=_number(results.get("steps_per_s")),
-        train_wall_s=_number(results.get("train_wall_s")),
+        steps_per_s=finite_or_none(results.get("steps_per_s")),
+        train_wall_s=finite_or_none(results.get("train_wall_s")),
         test=results.get("test") or {},
         bench=results.get("bench") or {},
         frame_png=_here(folder, results.get("frame_png")),

@@ -22,8 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from gnsx.evaluation.report.analysis import BudgetPick, _ratio_text, _with_se, pareto_front, versus_best
-from gnsx.evaluation.report.jobs import Job, _number, reference_jobs, speed_source, sweep_name, swept_axes
+from gnsx.evaluation.report.analysis import BudgetPick, mean_se_text, pareto_front, ratio_text, versus_best
+from gnsx.evaluation.report.jobs import (
+    Job,
+    finite_or_none,
+    reference_jobs,
+    speed_source,
+    sweep_name,
+    swept_axes,
+)
 from gnsx.evaluation.spread import DOES_NOT_BEAT, TIED
 
 #: The paper's model (figure 9's green cell): (latent size, message-passing steps).
@@ -41,10 +48,10 @@ def _cell_text(job: Job, source: str, versus: tuple[str, str | None] | None = No
     first += f", {mb:.0f} MB" if mb is not None else ""
     if job.rollout_mse is None:
         return first
-    lines = [first, "MSE " + _with_se(*job.spread("rollout_mse"))]
+    lines = [first, "MSE " + mean_se_text(*job.spread("rollout_mse"))]
     ratio = job.baseline_ratio()
     if ratio[0] is not None:
-        lines.append("base/model " + _ratio_text(*ratio))
+        lines.append("base/model " + ratio_text(*ratio))
     tag = _VERSUS_BEST_TAGS.get(versus[0]) if versus else None
     if job.versus_baseline() == DOES_NOT_BEAT:
         lines.append("does not beat baseline" + (f"; {tag}" if tag else ""))
@@ -272,23 +279,26 @@ def plot_radius(jobs: Sequence[Job], path: Path, repeats: Sequence[Job] = ()) ->
     seeds = [j for j in repeats if j.ok and j.radius is not None]
     fig, (err_ax, step_ax, ms_ax) = plt.subplots(1, 3, figsize=(14, 4.2))
     radius = np.array([j.radius for j in ok])
-    rollout = np.array([_number(j.rollout_mse) or np.nan for j in ok])
+    rollout = np.array([finite_or_none(j.rollout_mse) or np.nan for j in ok])
     if len(ok):
         half = np.array([_interval_half_width(j) for j in ok])
         err_ax.errorbar(radius, rollout, yerr=[np.minimum(half, 0.99 * rollout), half], fmt="o", color="tab:blue",
                         ecolor="0.4", capsize=3, label="lowest seed (95% interval over trajectories)")  # fmt: skip
         if seeds:
-            err_ax.scatter([j.radius for j in seeds], [_number(j.rollout_mse) or np.nan for j in seeds], s=40,
-                           facecolors="none", edgecolors="tab:gray", linewidths=1.5, label="another seed")  # fmt: skip
-            means = [np.nanmean([_number(x.rollout_mse) or np.nan for x in [j, *seeds] if x.radius == j.radius])
+            err_ax.scatter([j.radius for j in seeds],
+                           [finite_or_none(j.rollout_mse) or np.nan for j in seeds],
+                           s=40, facecolors="none", edgecolors="tab:gray", linewidths=1.5,
+                           label="another seed")  # fmt: skip
+            means = [np.nanmean([finite_or_none(x.rollout_mse) or np.nan
+                                 for x in [j, *seeds] if x.radius == j.radius])
                      for j in ok]  # fmt: skip
             err_ax.plot(radius, means, "-", color="tab:blue", lw=1, label="mean over seeds")
-        baseline = [_number(j.test.get("baseline_mse")) for j in ok]
+        baseline = [finite_or_none(j.test.get("baseline_mse")) for j in ok]
         if any(b is not None for b in baseline):
             err_ax.plot(radius, [np.nan if b is None else b for b in baseline], "--", color="tab:red", lw=1,
                         label="physics-free baseline")  # fmt: skip
         step_ax.plot(
-            radius, [_number(j.test.get("onestep_mse")) or np.nan for j in ok], "-s", color="tab:green"
+            radius, [finite_or_none(j.test.get("onestep_mse")) or np.nan for j in ok], "-s", color="tab:green"
         )
         ms_ax.plot(radius, [j.ms_per_frame(source) or np.nan for j in ok], "-o", color="tab:orange")
     for job in jobs:
@@ -321,7 +331,7 @@ def _interval_half_width(job: Job, key: str = "rollout_mse") -> float:
     from scipy.stats import t as student_t
 
     se = job.spread(key)[1]
-    n = _number(job.test.get("trajectories")) or len(job.rows)
+    n = finite_or_none(job.test.get("trajectories")) or len(job.rows)
     if se is None or not n or n < 2:
         return 0.0
     return float(se * student_t.ppf(0.975, int(n) - 1))

@@ -14,12 +14,12 @@ from typing import Any
 
 from gnsx.evaluation.report.analysis import (
     BudgetPick,
-    _ratio_text,
     axis_trends,
     best_job,
     budget_lines,
     cells_against_seeds,
     pareto_front,
+    ratio_text,
     seed_groups,
     versus_best,
     versus_reference,
@@ -27,8 +27,8 @@ from gnsx.evaluation.report.analysis import (
 from gnsx.evaluation.report.jobs import (
     AXIS_LABELS,
     Job,
-    _number,
     all_retimed,
+    finite_or_none,
     reference_jobs,
     speed_source,
     split_seeds,
@@ -87,7 +87,7 @@ def table_rows(jobs: Sequence[Job]) -> list[dict[str, Any]]:
                     for key in ("rollout_mse", "onestep_mse", "emd")
                     for name, value in zip((key, f"{key}_se"), j.spread(key))
                 },
-                "baseline_mse": _number(j.test.get("baseline_mse")),
+                "baseline_mse": finite_or_none(j.test.get("baseline_mse")),
                 **dict(zip(("baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi"), ratio)),
                 "vs_baseline": j.versus_baseline(),
                 "vs_best": versus.get(id(j), (None, None))[0],
@@ -121,7 +121,7 @@ def _markdown_cell(row: dict[str, Any], column: str) -> str:
         se = row.get(f"{column}_se")
         return _fmt(value) + (f" ± {se:.1e}" if se is not None else "")
     if column == "baseline_ratio" and value is not None:
-        return _ratio_text(value, row.get("baseline_ratio_lo"), row.get("baseline_ratio_hi"))
+        return ratio_text(value, row.get("baseline_ratio_lo"), row.get("baseline_ratio_hi"))
     if column == "vs_baseline" and value == DOES_NOT_BEAT:
         return "**does not beat baseline**"
     if column == "vs_best" and value is not None and row.get("vs_best_method"):
@@ -313,7 +313,7 @@ def seed_lines(jobs: Sequence[Job], key: str = "rollout_mse") -> list[str]:
         se = "n/a" if g["se_within"] is None else f"{g['se_within']:.2e}"
         lines.append(f"| {g['job'].label(keys)} | {', '.join(map(str, g['seeds']))} | {values} | "
                      f"{g['mean']:.3e} | {g['sd']:.2e} | {se} |")  # fmt: skip
-    primary = [_number(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
+    primary = [finite_or_none(j.spread(key)[0]) for j in split_seeds(jobs)[0] if j.ok]
     primary = [v for v in primary if v is not None]
     if len(primary) > 1:
         lines += ["", f"Across cells (lowest seed each) the mean {key} runs from {min(primary):.3e} to "
