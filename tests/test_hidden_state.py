@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from gnsx.evaluation.hidden_state import (
     BASELINE,
@@ -22,12 +21,7 @@ PRESET = get_preset("small")
 NO_RAMPS = np.zeros((0, 2, 2))
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py: the generator's thread count
 
 
 def block(lower, upper, jitter: float, seed: int = 0) -> np.ndarray:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from gnsx.evaluation.hidden_state_rollout import table, two_frame_rollout
 from gnsx.mpm.presets import get_preset
@@ -17,12 +16,7 @@ NO_RAMPS = np.zeros((0, 2, 2))
 G = np.array([0.0, -PRESET.gravity * PRESET.frame_dt**2])  # m per frame^2
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py: the generator's thread count
 
 
 def _block(lower, upper) -> np.ndarray:
