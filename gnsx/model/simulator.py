@@ -86,9 +86,11 @@ class LearnedSimulator(nn.Module):
         neighbor_search: ``"auto"``, ``"kdtree"`` or ``"cell"`` (see :func:`radius_graph`).
         cull: exact culling (module docstring); also settable on the model (``simulator.cull = False``).
         decoder: ``"node"`` or ``"pairwise"`` (module docstring).
-        gravity: ``[D]`` acceleration per frame^2 (data units) that the pairwise decoder adds to its forces
-            (:func:`gnsx.evaluation.scoring.gravity_per_frame`); None: ``acc_mean`` (what the node decoder's zero output
-            means). Ignored by the node decoder.
+        gravity: ``[D]`` the data's gravity, acceleration per frame^2 (data units,
+            :func:`gnsx.evaluation.scoring.gravity_per_frame`): the pairwise decoder adds it to its forces; the
+            node decoder's network ignores it, and the rules read it for either
+            (:func:`gnsx.rules.scale.rules_gravity`). None: not recorded (node-decoder checkpoints before
+            2026-12-07); the pairwise decoder then adds ``acc_mean`` (what the node decoder's zero output means).
         compile: ``torch.compile`` the network's blocks (:meth:`EncodeProcessDecode.compile_blocks`; fused
             C++ loops on CPU, needs a C++ compiler; the first frame or step compiles, ~10-60 s). Changes
             speed only, not the results (to float rounding) nor the parameters; docs/speed.md has figures.

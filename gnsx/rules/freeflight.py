@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
-from gnsx.rules.scale import rules_radius
+from gnsx.rules.scale import rules_gravity, rules_radius
 
 #: Velocity tolerance, as a fraction of the length of the data's velocity std (per frame): the truth's free
 #: blocks move as one to float precision; a model's rollout that has started shuffling does not.
@@ -164,13 +164,13 @@ class FreeFlight:
         lookahead: float = LOOKAHEAD,
     ) -> FreeFlight | None:
         """Thresholds from the model's data: ``tolerance * |vel_std|``, ``reach`` and ``clearance``
-        connectivity radii, and the gravity its pairwise decoder adds. None for a node-decoder model (it has
-        no gravity of its own)."""
-        free_fall = getattr(simulator, "free_fall", None)
-        if free_fall is None:
+        connectivity radii, and the data's gravity (:func:`gnsx.rules.scale.rules_gravity`). None for a model
+        that records no gravity (node-decoder checkpoints before 2026-12-07)."""
+        gravity = rules_gravity(simulator)
+        if gravity is None:
             return None
         return cls(
-            gravity=(free_fall * simulator.acc_std + simulator.acc_mean).detach().cpu(),
+            gravity=gravity,
             bounds=simulator.bounds.detach().cpu(),
             reach=reach * rules_radius(simulator),
             tolerance=tolerance * float(simulator.vel_std.norm()),

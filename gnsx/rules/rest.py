@@ -49,7 +49,7 @@ import torch
 from torch import Tensor
 
 from gnsx.model.neighbors import radius_graph
-from gnsx.rules.scale import rules_radius
+from gnsx.rules.scale import rules_gravity, rules_radius
 
 #: Speed threshold, as a fraction of the length of the data's velocity std (per frame).
 SPEED = 0.03
@@ -95,14 +95,12 @@ class RestHold:
         level: float | None = LEVEL,
     ) -> RestHold:
         """Thresholds from the model's data statistics: ``speed * |vel_std|`` and ``acceleration * |g|``, with
-        ``g`` the gravity the pairwise decoder adds (:attr:`LearnedSimulator.free_fall`); a node-decoder model
-        has no gravity of its own, so ``|acc_std|`` stands in for it. Test 4 (``level``, a fraction of the
-        radius; ``None``: off) uses the model's box."""
+        ``g`` the data's gravity (:func:`gnsx.rules.scale.rules_gravity`); for a model that records none
+        (node-decoder checkpoints before 2026-12-07) ``|acc_std|`` stands in for it. Test 4 (``level``, a
+        fraction of the radius; ``None``: off) uses the model's box."""
         vel = float(simulator.vel_std.norm())
-        if getattr(simulator, "free_fall", None) is not None:
-            gravity = float((simulator.free_fall * simulator.acc_std + simulator.acc_mean).norm())
-        else:
-            gravity = float(simulator.acc_std.norm())
+        recorded = rules_gravity(simulator)
+        gravity = float((simulator.acc_std if recorded is None else recorded).norm())
         radius = rules_radius(simulator)
         bounds = simulator.bounds.double().cpu()
         return cls(

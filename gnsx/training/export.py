@@ -46,6 +46,25 @@ def strip_checkpoint(src: Path, dst: Path) -> dict:
     return header
 
 
+def record_gravity(checkpoint: Path, metadata: Path) -> bool:
+    """Record the data's gravity (:func:`gnsx.evaluation.scoring.gravity_per_frame` of ``metadata``) in a
+    checkpoint whose model config has none (node-decoder runs before 2026-12-07), so that the rules (free
+    flight, the rest hold) work for it as for a newer one (:func:`gnsx.rules.scale.rules_gravity`). The
+    network's weights and outputs do not change: the node decoder does not read it. Returns whether it
+    wrote."""
+    from gnsx.data.metadata import Metadata
+    from gnsx.evaluation.scoring import gravity_per_frame
+
+    state = read_checkpoint(checkpoint)
+    model = state["hyper_parameters"]["model"]
+    if model.get("gravity") is not None:
+        return False
+    model["gravity"] = gravity_per_frame(Metadata.load(metadata)).tolist()
+    with atomic_path(checkpoint) as tmp:
+        torch.save(state, tmp)
+    return True
+
+
 def merge_curves(run_dir: Path) -> list[dict]:
     """Rows of every ``csv/version_*/metrics.csv`` of a run, in step order (resumed runs write several)."""
     rows: list[dict] = []
@@ -348,6 +367,8 @@ def _write_folder(
         shutil.copy(config, dest / "config.yaml")
     if data_root is not None and (data_root / "metadata.json").is_file():
         shutil.copy(data_root / "metadata.json", dest / "metadata.json")
+        if record_gravity(dest / "model.ckpt", dest / "metadata.json"):
+            info["gravity_recorded_from"] = str(data_root / "metadata.json")
     rows = merge_curves(run_dir)
     if rows:
         fields = sorted({k for r in rows for k in r})

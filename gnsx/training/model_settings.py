@@ -30,10 +30,12 @@ def architecture(model_cfg: DictConfig) -> dict[str, Any]:
 
 
 def model_arguments(model_cfg: DictConfig, meta: Metadata) -> dict[str, Any]:
-    """:func:`architecture` plus what the data decides: the pairwise decoder's gravity (the baseline's
-    ``g dt^2`` from the data's ``dt``, :func:`gnsx.evaluation.scoring.gravity_per_frame`) unless the config sets one."""
+    """:func:`architecture` plus what the data decides: the gravity (the baseline's ``g dt^2`` from the data's
+    ``dt``, :func:`gnsx.evaluation.scoring.gravity_per_frame`) unless the config sets one, recorded for every
+    decoder: the pairwise decoder adds it to its forces, and the rules (free flight, the rest hold) read it
+    for any model (:func:`gnsx.rules.scale.rules_gravity`)."""
     model = architecture(model_cfg)
-    if model.get("decoder") == "pairwise" and model.get("gravity") is None:
+    if model.get("gravity") is None:
         model["gravity"] = gravity_per_frame(meta).tolist()
     # The rules' length scale is the data's, whatever radius the graph uses (gnsx.rules.scale.rules_radius).
     model["data_radius"] = float(meta.default_connectivity_radius)
