@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -55,17 +55,26 @@ data-waterramps: install ## Generate the full WaterRamps-like preset (1000/100/1
 	$(PY) -m gnsx.data generate --preset waterramps --out data/waterramps
 
 PRETRAIN_DIR ?= outputs/pretrain/small
-pretrain: install ## Train shipped weights on CPU (400 training scenes, 100k steps, hours; rerun to resume), then ship them
-	$(PY) train.py data=small_400 train=pretrain hydra.run.dir=$(PRETRAIN_DIR) evaluate.render=false $(ARGS) \
-		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR))
-	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small --select-best-val
+pretrain: install ## Train the shipped weights' recipe on CPU: the paper's 64/5 with its schedule, 200k steps on 400 scenes (~3.5 h of one thread; rerun to resume), then ship the last checkpoint
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	$(PY) train.py --config-dir sweeps --config-name learning_long learning_arm=paperlr hydra.run.dir=$(PRETRAIN_DIR) \
+		$$([ -f $(PRETRAIN_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_DIR)) $(ARGS)
+	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small
 
-pretrain-gpu: install ## The shipped weights' recipe on one GPU (batch 32, LR 2e-3, 4.5 min fitted schedule), then ship them
+PRETRAIN_PAIRWISE_DIR ?= outputs/pretrain/small_pairwise
+pretrain-pairwise: install ## The recipe of the weights shipped before 2026-12-07 (pairwise decoder, 100k steps, hours; rerun to resume), exported behind the rest gate to outputs/pretrain/small_pairwise/export
+	$(PY) train.py data=small_400 train=pretrain hydra.run.dir=$(PRETRAIN_PAIRWISE_DIR) evaluate.render=false $(ARGS) \
+		$$([ -f $(PRETRAIN_PAIRWISE_DIR)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(PRETRAIN_PAIRWISE_DIR))
+	$(PY) -m gnsx.training.export $(PRETRAIN_PAIRWISE_DIR) $(PRETRAIN_PAIRWISE_DIR)/export --select-best-val
+
+PRETRAIN_GPU_DIR ?= outputs/pretrain/small_gpu
+pretrain-gpu: install ## pretrain-pairwise's recipe on one GPU (batch 32, LR 2e-3, 4.5 min fitted schedule), exported to outputs/pretrain/small_gpu/export
 	$(PY) train.py data=small_400 data.batch_size=32 data.num_workers=4 trainer=gpu train=pretrain \
 		train.max_steps=40000 train.max_time=00:00:04:30 train.fit_to_max_time=true train.lr_init=2e-3 \
 		train.val_every_n_steps=2000 train.val_max_trajectories=4 train.checkpoint_every_n_steps=500 \
-		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_DIR) $(ARGS)
-	$(PY) -m gnsx.training.export $(PRETRAIN_DIR) pretrained/small --select-best-val
+		train.permanent_every_n_steps=2000 evaluate.render=false hydra.run.dir=$(PRETRAIN_GPU_DIR) $(ARGS)
+	$(PY) -m gnsx.training.export $(PRETRAIN_GPU_DIR) $(PRETRAIN_GPU_DIR)/export --select-best-val
 
 PRETRAIN_DAM_DIR ?= outputs/pretrain/small_dam
 pretrain-dam: install ## Two-stage recipe (15k steps on 400 scenes, then 8k on pools and dam breaks; ~25 min): exported to outputs/pretrain/small_dam/export, not shipped (docs/decisions)
@@ -95,7 +104,7 @@ SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
 FIG9_MINI_DIR ?= multirun/fig9_mini/main
 RADIUS_MINI_DIR ?= multirun/radius_mini/main
-fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~5 h on 2 cores; resumable: rerun to continue), then the report and the claims table
+fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~2 h 15 min on 2 cores; resumable: rerun to continue), then the report and the claims table
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
 	@# Cells finished in an earlier session and committed (docs/fig9/jobs/) are not trained again.
@@ -111,7 +120,8 @@ fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seed
 	@# Finished cells' records (no checkpoints) go to docs/fig9/jobs/: committed, a later session skips them.
 	@for job in $(FIG9_MINI_DIR)/*/; do grep -qs '"status": "ok"' "$$job/results.json" || continue; \
 		dest=docs/fig9/jobs/$$(basename "$$job"); mkdir -p "$$dest"; \
-		cp "$$job"/results.json "$$dest"/; cp "$$job"/*.png "$$dest"/ 2>/dev/null || true; done
+		cp "$$job"/results.json "$$dest"/; cp "$$job"/*.png "$$dest"/ 2>/dev/null || true; \
+		cp -r "$$job"/.hydra "$$dest"/ 2>/dev/null || true; done
 	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR) --out docs/fig9 --wandb disabled
 	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/radius_0.035 \
 		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
@@ -141,7 +151,7 @@ learning-long: install ## The learning study's winner trained long: ARM=<arm> (s
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
 	@# A run committed mid-way (docs/learning/long/<arm>/: its curve and checkpoints/last.ckpt) resumes here.
-	@[ -e $(LONG_DIR)/$(ARM) ] || [ ! -d docs/learning/long/$(ARM) ] || { mkdir -p $(LONG_DIR); \
+	@[ -e $(LONG_DIR)/$(ARM) ] || [ ! -f docs/learning/long/$(ARM)/checkpoints/last.ckpt ] || { mkdir -p $(LONG_DIR); \
 		cp -r docs/learning/long/$(ARM) $(LONG_DIR)/$(ARM); echo "resuming from docs/learning/long/$(ARM)"; }
 	$(PY) train.py --config-dir sweeps --config-name learning_long learning_arm=$(ARM) hydra.run.dir=$(LONG_DIR)/$(ARM) \
 		$$([ -f $(LONG_DIR)/$(ARM)/checkpoints/last.ckpt ] && echo train.ckpt_path=$(LONG_DIR)/$(ARM)) $(ARGS)

@@ -17,6 +17,7 @@ of gnsx/evaluation/health.py) prints a warning, writes its files and exits 3.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -39,7 +40,13 @@ def main(cfg: DictConfig) -> None:
     # Imported here: a bad override fails in a second, without loading torch.
     from gnsx.core.threads import apply_threads
     from gnsx.evaluation.scene_rollout import load_scene, simulate_to_folder
-    from gnsx.model.checkpoint import check_fits, checkpoint_path, load_simulator, model_label
+    from gnsx.model.checkpoint import (
+        check_fits,
+        checkpoint_path,
+        load_simulator,
+        model_label,
+        trained_data_radius,
+    )
     from gnsx.mpm.presets import PRESETS, get_preset
     from gnsx.mpm.scenes import Scene
     from gnsx.rules.rules import Rules
@@ -57,7 +64,10 @@ def main(cfg: DictConfig) -> None:
     check_simulate_config(cfg, input_frames=simulator.input_frames)
     if not cfg.get("allow_mismatch", False):
         bounds = [list(preset.bounds)] * 2
-        trained = [p.name for p in PRESETS.values() if p.default_connectivity_radius == simulator.radius]
+        data_radius = trained_data_radius(simulator)
+        trained = [
+            p.name for p in PRESETS.values() if math.isclose(p.default_connectivity_radius, data_radius)
+        ]
         hint = f"; use preset={trained[0]}" if trained else "; use the preset it was trained on"
         check_fits(simulator, str(checkpoint), bounds, preset.default_connectivity_radius, 2,
                    f"preset={preset.name}", hint + " (or allow_mismatch=true to run it anyway)")  # fmt: skip

@@ -560,9 +560,8 @@ def test_evaluate_data_and_settings(case, overrides, expected, bad_checkpoints, 
             "simulate: a small-preset model on preset=waterramps",
             ["preset=waterramps"],
             "error: pretrained/small/model.ckpt: trained with dim 2, bounds [[0.1, 0.9], [0.1, 0.9]], "
-            "radius 0.035, but preset=waterramps has radius 0.015 (2.3x apart): the model does not fit; use "
-            "preset=small (or "
-            "allow_mismatch=true to run it anyway)",
+            "radius 0.0466655 (on data of default radius 0.035), but preset=waterramps has radius 0.015 (2.3x "
+            "apart): the model does not fit; use preset=small (or allow_mismatch=true to run it anyway)",
         ),
         (
             "simulate: unknown key inside a scene block",

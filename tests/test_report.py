@@ -491,3 +491,17 @@ def test_speed_vs_error_bars_are_95_percent_t_intervals(spread_sweep):
     assert _interval_half_width(best) == pytest.approx(se * student_t.ppf(0.975, 3))
     assert _interval_half_width(best) > 3 * se  # four trajectories: far wider than one SE
     assert _interval_half_width(jobs["32/5"]) == 0.0  # no spread recorded: no bar
+
+
+def test_a_job_copied_without_its_config_keeps_its_seed(tmp_path):
+    """A job folder committed without ``.hydra/`` (results.json and pictures only) still says its seed, from the
+    Hydra overrides its results.json records: the F test of cells against seeds needs it."""
+    from gnsx.evaluation.report.jobs import load_job
+
+    folder = tmp_path / "model.latent_size=64,model.mp_steps=5,seed=2"
+    folder.mkdir()
+    overrides = ["model.latent_size=64", "model.mp_steps=5", "seed=2"]
+    (folder / "results.json").write_text(json.dumps({"status": "ok", "overrides": overrides, "test": {}}))
+    assert load_job(folder).seed == 2
+    (folder / "results.json").write_text(json.dumps({"status": "ok", "overrides": overrides[:2], "test": {}}))
+    assert load_job(folder).seed is None

@@ -361,3 +361,19 @@ def test_physics_free_baseline():
     assert torch.allclose(predicted[:3, free], ballistic[:, free], atol=1e-6)
     # Particles end up resting on the floor.
     assert torch.allclose(predicted[-1, water, 1], torch.tensor(0.1), atol=1e-6)
+
+
+def test_a_model_fits_the_data_it_was_trained_on_whatever_its_own_radius():
+    """``check_fits`` compares the default radius of the model's training data with the target's: the paper's
+    radius (0.0467) on the small preset (0.035) fits it, and neither fits WaterRamps-size data (0.015)."""
+    from gnsx.core.errors import CheckpointError
+    from gnsx.model.checkpoint import check_fits
+
+    bounds = METADATA["bounds"]
+    paper = make_simulator({}, radius=0.0467, data_radius=0.035)
+    check_fits(paper, "paper.ckpt", bounds, 0.035, 2, "the small preset")
+    with pytest.raises(CheckpointError, match=r"radius 0.0467 \(on data of default radius 0.035\).*2.3x apart"):
+        check_fits(paper, "paper.ckpt", bounds, 0.015, 2, "preset=waterramps")
+    unrecorded = make_simulator({}, radius=0.035)  # no data_radius: its own radius stands for the data's
+    with pytest.raises(CheckpointError, match="2.3x apart"):
+        check_fits(unrecorded, "old.ckpt", bounds, 0.015, 2, "preset=waterramps")

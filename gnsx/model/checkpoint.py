@@ -236,10 +236,11 @@ def check_fits(
 ) -> None:
     """Refuse to apply a model to data (or a preset) unlike its training data.
 
-    The model's dimension and walls must be the data's, and its connectivity radius within a factor
-    :data:`RADIUS_TOLERANCE` of the data's default radius (a radius sweep stays inside; a small-preset model,
-    R = 0.035, on WaterRamps-size particles, R = 0.015, does not: every particle would see ~4x the neighbours
-    it was trained with).
+    The model's dimension and walls must be the data's, and the default radius of the data it was trained on
+    (``data_radius``; its own radius for checkpoints that do not record it) within a factor
+    :data:`RADIUS_TOLERANCE` of this data's (a radius sweep's or the paper's radius on the same data stays
+    inside; a small-preset model, R = 0.035, on WaterRamps-size particles, R = 0.015, does not: its particles
+    would be ~2.3x too close for what it learned).
 
     Args:
         where: the checkpoint (for the message).
@@ -250,13 +251,16 @@ def check_fits(
         CheckpointError: naming the checkpoint, what it was trained with and what ``target`` has.
     """
     cfg = simulator.config
+    data_radius = trained_data_radius(simulator)
     trained = f"dim {cfg['dim']}, bounds {cfg['bounds']}, radius {cfg['radius']:g}"
+    if not _close(data_radius, cfg["radius"]):
+        trained += f" (on data of default radius {data_radius:g})"
     problems = []
     if cfg["dim"] != dim:
         problems.append(f"dim {dim}")
     elif any(not _close(a, b) for pa, pb in zip(cfg["bounds"], bounds) for a, b in zip(pa, pb)):
         problems.append(f"bounds {[[float(v) for v in pair] for pair in bounds]}")
-    ratio = float(cfg["radius"]) / float(radius)
+    ratio = data_radius / float(radius)
     if not 1 / RADIUS_TOLERANCE <= ratio <= RADIUS_TOLERANCE:
         problems.append(f"radius {radius:g} ({ratio:.2g}x apart)")
     if problems:
@@ -264,6 +268,13 @@ def check_fits(
             where,
             f"trained with {trained}, but {target} has {', '.join(problems)}: the model does not fit{hint}",
         )
+
+
+def trained_data_radius(simulator: LearnedSimulator) -> float:
+    """The default connectivity radius of the data the model was trained on (``data_radius``), or its own
+    radius for checkpoints that do not record it (they all used the data's)."""
+    data_radius = simulator.config.get("data_radius")
+    return float(simulator.config["radius"] if data_radius is None else data_radius)
 
 
 def model_label(simulator: LearnedSimulator) -> str:

@@ -229,10 +229,20 @@ def load_job(folder: Path) -> Job:
         frame_truth_png=_here(folder, results.get("frame_truth_png")),
         sweep=results.get("sweep") or config.get("sweep", {}).get("name"),
         rows=[row for row in results.get("rows") or [] if isinstance(row, dict)],
-        seed=_int(config.get("seed")),
+        seed=_int(config.get("seed", _override(results, "seed"))),
         rules={str(k): bool(v) for k, v in (results.get("rules") or {}).items()},
         default_radius=_default_radius(model.get("radius_source")),
     )
+
+
+def _override(results: dict, key: str) -> str | None:
+    """The value of ``key=<value>`` among results.json's Hydra ``overrides``, or None: what a job folder
+    copied without its ``.hydra/`` (its config) still says of the settings a sweep varied."""
+    for override in results.get("overrides") or []:
+        name, _, value = str(override).partition("=")
+        if name.lstrip("+~") == key:
+            return value
+    return None
 
 
 def _default_radius(source: Any) -> bool | None:
