@@ -372,7 +372,9 @@ def test_a_model_fits_the_data_it_was_trained_on_whatever_its_own_radius():
     bounds = METADATA["bounds"]
     paper = make_simulator({}, radius=0.0467, data_radius=0.035)
     check_fits(paper, "paper.ckpt", bounds, 0.035, 2, "the small preset")
-    with pytest.raises(CheckpointError, match=r"radius 0.0467 \(on data of default radius 0.035\).*2.3x apart"):
+    with pytest.raises(
+        CheckpointError, match=r"radius 0.0467 \(on data of default radius 0.035\).*2.3x apart"
+    ):
         check_fits(paper, "paper.ckpt", bounds, 0.015, 2, "preset=waterramps")
     unrecorded = make_simulator({}, radius=0.035)  # no data_radius: its own radius stands for the data's
     with pytest.raises(CheckpointError, match="2.3x apart"):
