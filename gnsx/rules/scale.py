@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import torch
 
+from gnsx.model.checkpoint import trained_data_radius
 from gnsx.model.simulator import LearnedSimulator
 
 
 def rules_radius(simulator: LearnedSimulator) -> float:
     """The dataset's connectivity radius (data units) that the simulator was trained on; the model's own
     radius for checkpoints saved before ``data_radius`` was recorded (they all used the dataset's)."""
-    data_radius = simulator.config.get("data_radius")
-    return float(simulator.radius if data_radius is None else data_radius)
+    return trained_data_radius(simulator)
 
 
 def rules_gravity(simulator: LearnedSimulator) -> torch.Tensor | None:
