@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -125,6 +125,24 @@ fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seed
 	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR) --out docs/fig9 --wandb disabled
 	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/radius_0.035 \
 		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
+
+BUDGET_DIR ?= multirun/budget/main
+BUDGET_KEEP ?= docs/fig9/budget/jobs
+BUDGET_SHIPPED := $(BUDGET_DIR)/model.latent_size=64,model.mp_steps=5,seed=0,train.max_steps=200000
+budget: install ## The budget curve: the paper's 64/5 at 25k/50k/100k steps x seeds 0-1 and seed 1 at 200k (~9 h on each of 2 cores; resumable across sessions), then docs/fig9/budget
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	@# Seed 0 at 200k is the shipped weights' run (same recipe): its committed record stands in for the job.
+	@mkdir -p $(BUDGET_DIR); [ -e "$(BUDGET_SHIPPED)" ] || cp -r docs/learning/long/paperlr "$(BUDGET_SHIPPED)"
+	@# Jobs committed by an earlier session (records, or an unfinished job's last.ckpt) resume here.
+	@for job in $(BUDGET_KEEP)/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(BUDGET_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(BUDGET_DIR)/"; done
+	$(PY) train.py -m --config-dir sweeps --config-name budget hydra.sweep.dir=$(BUDGET_DIR) $(ARGS)
+	@$(MAKE) --no-print-directory budget-keep
+	$(PY) -m gnsx.evaluation.report.budget $(BUDGET_DIR) --out docs/fig9/budget
+
+budget-keep: ## Copy the budget curve's jobs to docs/fig9/budget/jobs to commit: records of finished jobs, last.ckpt of unfinished ones
+	@BUDGET_DIR=$(BUDGET_DIR) KEEP=$(BUDGET_KEEP) bash scripts/keep_jobs.sh
 
 LEARNING_DIR ?= multirun/learning/main
 learning: install ## The learning study: 10 single arms + 1 combination x 2 seeds, 20 min of one thread each (~5 h on 2 cores; resumable), then docs/learning's table and curves

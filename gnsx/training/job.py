@@ -15,6 +15,7 @@ from typing import Any
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from gnsx.core.machine import cpu_name
 from gnsx.training.numerics import Diverged
 
 #: The test metrics every results.json carries (None when the evaluation did not produce one).
@@ -58,6 +59,9 @@ def job_identity(cfg: DictConfig, hydra_cfg: DictConfig) -> dict[str, Any]:
         "swept": swept,
         # The wandb run name: the swept values, else (a single run) every override.
         "name": ",".join(swept) or hydra_cfg.job.override_dirname or Path(hydra_cfg.runtime.output_dir).name,
+        # The CPU this process trains on (timings and hours depend on it; a resumed run records each machine
+        # it ran on in "cpus").
+        "cpu": cpu_name(),
     }
 
 

@@ -205,6 +205,8 @@ def run_training(cfg: DictConfig) -> float | None:
         if previous is not None:
             log.warning("%s: the previous run here was %s", results_path, previous["error"])
             record["previous"] = {key: previous.get(key) for key in ("status", "error", "global_step")}
+            before = previous.get("cpus") or [previous.get("cpu")]
+            record["cpus"] = [cpu for cpu in dict.fromkeys([*before, record["cpu"]]) if cpu]
         resumed = run_dir_of(cfg.train.ckpt_path)
         if resumed is not None and resumed.resolve() != run_dir.resolve():
             runstate.mark_interrupted(resumed / "results.json", resumed_in=str(run_dir))

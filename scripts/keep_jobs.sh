@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Copy a resumable sweep's jobs into a folder that is committed, so that a fresh machine resumes the sweep:
+#   BUDGET_DIR=<sweep folder> KEEP=<committed folder> bash scripts/keep_jobs.sh
+# A finished job (results.json "status": "ok") keeps its record: results.json, curve.jsonl, the grid's frames
+# and .hydra (no checkpoints: a finished job is skipped on resume). An unfinished one keeps the same plus its
+# checkpoints/last.ckpt, which the .gitignore ignores: the script prints the `git add -f` that commits it.
+# Nothing is removed from the sweep folder; a job that has neither a record nor a checkpoint is left out.
+set -euo pipefail
+src=${BUDGET_DIR:?set BUDGET_DIR=<sweep folder>}
+keep=${KEEP:?set KEEP=<folder to commit>}
+[ -d "$src" ] || { echo "keep_jobs: no sweep folder $src" >&2; exit 2; }
+for job in "$src"/*/; do
+    job=${job%/}
+    name=$(basename "$job")
+    [ -f "$job/results.json" ] || [ -f "$job/checkpoints/last.ckpt" ] || continue
+    dest="$keep/$name"
+    mkdir -p "$dest"
+    for f in results.json curve.jsonl frame_0150.png frame_truth_0150.png; do
+        [ -f "$job/$f" ] && cp "$job/$f" "$dest/"
+    done
+    [ -d "$job/.hydra" ] && { mkdir -p "$dest/.hydra"; cp "$job"/.hydra/*.yaml "$dest/.hydra/"; }
+    if grep -qs '"status": "ok"' "$job/results.json"; then
+        rm -rf "$dest/checkpoints"
+        echo "finished:   $dest"
+    elif [ -f "$job/checkpoints/last.ckpt" ]; then
+        mkdir -p "$dest/checkpoints"
+        cp "$job/checkpoints/last.ckpt" "$dest/checkpoints/last.ckpt"
+        echo "unfinished: $dest (git add -f '$dest/checkpoints/last.ckpt')"
+    fi
+done
