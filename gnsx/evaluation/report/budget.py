@@ -259,12 +259,12 @@ def plot(groups: dict[int, list[Job]], path: Path) -> Path:
             if x is None:
                 continue
             ax.errorbar([x], [mean], yerr=[[mean - lo], [hi - mean]] if math.isfinite(lo) else None,
-                        fmt="o", color="C0", capsize=4)  # fmt: skip
+                        fmt="o", color="C0", capsize=4, label="seeds pooled, 95% interval")  # fmt: skip
         for job in group:
             err = geometric_mean_interval(per_trajectory(job).values())[0]
-            ax_steps.plot([steps], [err], "x", color="grey")
+            ax_steps.plot([steps], [err], "x", color="grey", label="one seed")
             if hours(job) is not None:
-                ax_hours.plot([hours(job)], [err], "x", color="grey")
+                ax_hours.plot([hours(job)], [err], "x", color="grey", label="one seed")
             area, area_se = mean_se(per_trajectory(job, "area_ratio_final").values())
             ax_area.errorbar([steps], [area], yerr=[area_se], fmt="o", capsize=3,
                              color=f"C{job.seed or 0}", label=f"seed {job.seed}")  # fmt: skip
@@ -283,14 +283,17 @@ def plot(groups: dict[int, list[Job]], path: Path) -> Path:
     ax_hours.set(xscale="log", yscale="log", xlabel="hours of one thread (training clock)")
     ax_area.axhline(1.0, ls="--", color="k", lw=1)
     ax_area.set(xscale="log", xlabel="training steps", ylabel="water area at the last frame / truth's")
-    handles, labels = ax_area.get_legend_handles_labels()
-    unique = dict(zip(labels, handles, strict=False))
-    ax_area.legend(unique.values(), unique.keys(), fontsize=8)
+    for ax in (ax_steps, ax_hours, ax_area):  # one legend entry per label
+        handles, labels = ax.get_legend_handles_labels()
+        unique = dict(zip(labels, handles, strict=False))
+        ax.legend(unique.values(), unique.keys(), fontsize=8)
     ax_curve.set(yscale="log", xlabel="fraction of the run", ylabel="validation rollout MSE (8 trajectories)")
-    ax_curve.legend(fontsize=7)
+    if ax_curve.lines:
+        ax_curve.legend(fontsize=7)
+    else:
+        ax_curve.text(0.5, 0.5, "no validation curves", ha="center", transform=ax_curve.transAxes)
     for ax in axes:
         ax.grid(alpha=0.3)
-    ax_steps.legend(["seed-pooled, 95% interval"], fontsize=8)
     fig.suptitle(
         "The budget curve: the paper's 64/5, the grid's recipe, raw network (dots: seeds pooled; x: one seed)"
     )
