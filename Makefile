@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep fig9-trained fig9-trained-keep pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -104,11 +104,11 @@ SWEEP_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
 SWEEP ?= $(shell ls -dt multirun/*/*/ 2>/dev/null | head -1)
 FIG9_MINI_DIR ?= multirun/fig9_mini/main
 RADIUS_MINI_DIR ?= multirun/radius_mini/main
-fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~2 h 15 min on 2 cores; resumable: rerun to continue), then the report and the claims table
+fig9-mini: install ## Figure 9 at 10k steps (docs/fig9/steps_10k), the paper's radius and recipe: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3, 10k steps each, 16 test trajectories (~2 h 15 min on 2 cores; resumable: rerun to continue), then the report and the claims table
 	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
 		--train 400 --valid 8 --test 16
-	@# Cells finished in an earlier session and committed (docs/fig9/jobs/) are not trained again.
-	@mkdir -p $(FIG9_MINI_DIR); for job in docs/fig9/jobs/*/; do [ -d "$$job" ] || continue; \
+	@# Cells finished in an earlier session and committed (docs/fig9/steps_10k/jobs/) are not trained again.
+	@mkdir -p $(FIG9_MINI_DIR); for job in docs/fig9/steps_10k/jobs/*/; do [ -d "$$job" ] || continue; \
 		[ -e "$(FIG9_MINI_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(FIG9_MINI_DIR)/"; done
 	$(PY) train.py -m --config-dir sweeps --config-name fig9_mini hydra.sweep.dir=$(FIG9_MINI_DIR) $(ARGS)
 	@# Two more seeds of four cells spread over both axes: the F test of cells against seeds needs them.
@@ -117,14 +117,14 @@ fig9-mini: install ## Figure 9 at the paper's radius and recipe: 16 cells + seed
 		|| exit 1; done
 	@# Every cell timed again together in this (now quiet) process: in-job timings ran beside another job.
 	$(PY) -m gnsx.evaluation.report.retime $(FIG9_MINI_DIR)
-	@# Finished cells' records (no checkpoints) go to docs/fig9/jobs/: committed, a later session skips them.
+	@# Finished cells' records (no checkpoints) go to docs/fig9/steps_10k/jobs/: committed, a later session skips them.
 	@for job in $(FIG9_MINI_DIR)/*/; do grep -qs '"status": "ok"' "$$job/results.json" || continue; \
-		dest=docs/fig9/jobs/$$(basename "$$job"); mkdir -p "$$dest"; \
+		dest=docs/fig9/steps_10k/jobs/$$(basename "$$job"); mkdir -p "$$dest"; \
 		cp "$$job"/results.json "$$dest"/; cp "$$job"/*.png "$$dest"/ 2>/dev/null || true; \
 		cp -r "$$job"/.hydra "$$dest"/ 2>/dev/null || true; done
-	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR) --out docs/fig9 --wandb disabled
-	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/radius_0.035 \
-		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
+	$(PY) -m gnsx.evaluation.report $(FIG9_MINI_DIR) --out docs/fig9/steps_10k --wandb disabled
+	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9/steps_10k --compare docs/fig9/radius_0.035 \
+		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9/steps_10k
 
 BUDGET_DIR ?= multirun/budget/main
 BUDGET_KEEP ?= docs/fig9/budget/jobs
@@ -143,6 +143,35 @@ budget: install ## The budget curve: the paper's 64/5 at 25k/50k/100k steps x se
 
 budget-keep: ## Copy the budget curve's jobs to docs/fig9/budget/jobs to commit: records of finished jobs, last.ckpt of unfinished ones
 	@BUDGET_DIR=$(BUDGET_DIR) KEEP=$(BUDGET_KEEP) bash scripts/keep_jobs.sh
+
+FIG9_TRAINED_DIR ?= multirun/fig9_trained/main
+FIG9_TRAINED_KEEP ?= docs/fig9/jobs
+# The grid's length: the budget curve's pick (docs/fig9/budget/budget.json), or BUDGET=<steps> by hand.
+BUDGET ?= $(shell python3 -c "import json; print(json.load(open('docs/fig9/budget/budget.json'))['decision']['budget'] or '')" 2>/dev/null)
+fig9-trained: install ## Figure 9 of trained models: 16 cells + seeds 1-2 of 16/1, 32/10, 64/5, 128/3 at the budget curve's length (tens of hours of one thread on each of 2 cores; resumable across sessions), then the report
+	@[ -n "$(BUDGET)" ] || { echo "the budget curve has not picked a budget yet (docs/fig9/budget/budget.json): make budget, or set BUDGET=<steps>"; exit 2; }
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	@mkdir -p $(FIG9_TRAINED_DIR)
+	@# The paper's 64/5 at seeds 0 and 1 are the budget curve's jobs at this length: copied in, not trained twice.
+	@for seed in 0 1; do name=fig9_cell=64x5$$([ $$seed = 0 ] || echo _seed$$seed),train.max_steps=$(BUDGET); \
+		for src in $(BUDGET_DIR) $(BUDGET_KEEP); do job="$$src/model.latent_size=64,model.mp_steps=5,seed=$$seed,train.max_steps=$(BUDGET)"; \
+			[ ! -e "$(FIG9_TRAINED_DIR)/$$name" ] && grep -qs '"status": "ok"' "$$job/results.json" && \
+				cp -r "$$job" "$(FIG9_TRAINED_DIR)/$$name" && echo "from the budget curve: $$name"; done; done; true
+	@# Jobs committed by an earlier session (records, or an unfinished job's last.ckpt) resume here.
+	@for job in $(FIG9_TRAINED_KEEP)/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(FIG9_TRAINED_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(FIG9_TRAINED_DIR)/"; done
+	$(PY) train.py -m --config-dir sweeps --config-name fig9_trained hydra.sweep.dir=$(FIG9_TRAINED_DIR) \
+		train.max_steps=$(BUDGET) $(ARGS)
+	@$(MAKE) --no-print-directory fig9-trained-keep
+	@# Every cell timed again together in this (now quiet) process: in-job timings ran beside another job.
+	$(PY) -m gnsx.evaluation.report.retime $(FIG9_TRAINED_DIR)
+	$(PY) -m gnsx.evaluation.report $(FIG9_TRAINED_DIR) --out docs/fig9 --wandb disabled
+	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/steps_10k \
+		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
+
+fig9-trained-keep: ## Copy the trained grid's jobs to docs/fig9/jobs to commit: records of finished jobs, last.ckpt of unfinished ones
+	@BUDGET_DIR=$(FIG9_TRAINED_DIR) KEEP=$(FIG9_TRAINED_KEEP) bash scripts/keep_jobs.sh
 
 LEARNING_DIR ?= multirun/learning/main
 learning: install ## The learning study: 10 single arms + 1 combination x 2 seeds, 20 min of one thread each (~5 h on 2 cores; resumable), then docs/learning's table and curves

@@ -254,7 +254,7 @@ def _default_radius(source: Any) -> bool | None:
 
 def _here(folder: Path, recorded: str | None) -> str | None:
     """A picture the job recorded, found in its own folder when the recorded path is gone (the folder was
-    moved or copied, e.g. a finished cell restored from docs/fig9/jobs/)."""
+    moved or copied, e.g. a finished cell restored from a committed docs/fig9/.../jobs/)."""
     if recorded is None or Path(recorded).is_file():
         return recorded
     local = folder / Path(recorded).name
