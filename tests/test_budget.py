@@ -148,3 +148,34 @@ def test_the_cpu_is_named_with_its_generation_and_matrix_extensions(tmp_path):
     assert name.startswith("Intel(R) Xeon(R) Processor (family 6 model 207; avx512_bf16;")
     assert "avx2" not in name and "ignored" not in name
     assert cpu_name(tmp_path / "missing")  # unreadable: still a name
+
+
+def test_the_trained_grid_is_every_cell_and_the_seeds_at_the_budget_in_the_claims_order():
+    cfg = _compose_sweep("fig9_trained", ["train.max_steps=50000"])
+    jobs = str(cfg.hydra.sweeper.params["fig9_cell"]).split(",")
+    assert list(cfg.hydra.sweeper.params) == ["fig9_cell"]  # fig9_mini's latent x MP grid is cleared
+    assert jobs[:5] == ["64x5", "16x5", "128x5", "64x1", "64x10"] and len(set(jobs)) == len(jobs) == 24
+    cells, seeds = set(), []
+    for job in jobs:
+        option = OmegaConf.load(ROOT / "sweeps" / "fig9_cell" / f"{job}.yaml")
+        cell = (option.model.latent_size, option.model.mp_steps)
+        cells.add(cell)
+        assert job.split("_")[0] == f"{cell[0]}x{cell[1]}"
+        if "seed" in option:
+            seeds.append((cell, option.seed))
+    assert cells == {(w, m) for w in (16, 32, 64, 128) for m in (1, 3, 5, 10)}
+    assert sorted(seeds) == sorted((c, s) for c in [(16, 1), (32, 10), (64, 5), (128, 3)] for s in (1, 2))
+    # The recipe of the budget curve, so that its 64/5 jobs are the grid's.
+    budget = _compose_sweep("budget", ["train.max_steps=50000"])
+    for key in ("max_steps", "lr_init", "lr_final", "lr_decay_start", "lr_decay_end", "noise_std", "mirror"):
+        assert cfg.train[key] == budget.train[key], key
+    assert cfg.trainer.precision == budget.trainer.precision == "32-true"
+    assert cfg.model.mlp_hidden_size == cfg.model.latent_size
+    # The budget is never a silent default: without it the config check stops every job at once.
+    from gnsx.core.errors import ConfigError
+    from gnsx.training.config_checks import check_train_config
+
+    unset = _compose_sweep("fig9_trained")
+    assert unset.train.max_steps is None
+    with pytest.raises(ConfigError, match="train.max_steps"):
+        check_train_config(unset)
