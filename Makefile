@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep fig9-trained fig9-trained-keep pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep fig9-trained fig9-trained-keep versus-trained pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -172,6 +172,25 @@ fig9-trained: install ## Figure 9 of trained models: 16 cells + seeds 1-2 of 16/
 
 fig9-trained-keep: ## Copy the trained grid's jobs to docs/fig9/jobs to commit: records of finished jobs, last.ckpt of unfinished ones
 	@BUDGET_DIR=$(FIG9_TRAINED_DIR) KEEP=$(FIG9_TRAINED_KEEP) bash scripts/keep_jobs.sh
+
+VERSUS_TRAINED_DIR ?= multirun/versus_trained/main
+VERSUS_TRAINED_KEEP ?= docs/original-vs-simplified/trained/jobs
+versus-trained: install ## Original vs simplified, trained: the original GNS with the grid's recipe at the budget curve's length (hours of one thread; resumable across sessions) beside the grid's 64/5, then figures 6-8
+	@[ -n "$(BUDGET)" ] || { echo "the budget curve has not picked a budget yet (docs/fig9/budget/budget.json): make budget, or set BUDGET=<steps>"; exit 2; }
+	@[ -f data/small_400/metadata.json ] || $(PY) -m gnsx.data generate --preset small --out data/small_400 \
+		--train 400 --valid 8 --test 16
+	@mkdir -p $(VERSUS_TRAINED_DIR)
+	@# The simplified partner is the budget curve's 64/5 at this length (seed 0): copied in, not trained again.
+	@for src in $(BUDGET_DIR) $(BUDGET_KEEP); do job="$$src/model.latent_size=64,model.mp_steps=5,seed=0,train.max_steps=$(BUDGET)"; \
+		name="$(VERSUS_TRAINED_DIR)/model=simplified,seed=0,train.max_steps=$(BUDGET)"; \
+		[ ! -e "$$name" ] && grep -qs '"status": "ok"' "$$job/results.json" && cp -r "$$job" "$$name" \
+			&& echo "the simplified partner: $$job"; done; true
+	@for job in $(VERSUS_TRAINED_KEEP)/*/; do [ -d "$$job" ] || continue; \
+		[ -e "$(VERSUS_TRAINED_DIR)/$$(basename "$$job")" ] || cp -r "$$job" "$(VERSUS_TRAINED_DIR)/"; done
+	$(PY) train.py -m --config-dir sweeps --config-name versus_trained hydra.sweep.dir=$(VERSUS_TRAINED_DIR) \
+		train.max_steps=$(BUDGET) $(ARGS)
+	@BUDGET_DIR=$(VERSUS_TRAINED_DIR) KEEP=$(VERSUS_TRAINED_KEEP) bash scripts/keep_jobs.sh
+	$(PY) -m gnsx.evaluation.report.versus $(VERSUS_TRAINED_DIR) --data data/small_400 --out docs/original-vs-simplified/trained
 
 LEARNING_DIR ?= multirun/learning/main
 learning: install ## The learning study: 10 single arms + 1 combination x 2 seeds, 20 min of one thread each (~5 h on 2 cores; resumable), then docs/learning's table and curves

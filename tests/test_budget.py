@@ -138,7 +138,9 @@ def test_keep_jobs_commits_records_and_unfinished_checkpoints(tmp_path):
                          check=True).stdout  # fmt: skip
     assert (keep / done.name / "results.json").is_file() and (keep / done.name / "curve.jsonl").is_file()
     assert not (keep / done.name / "checkpoints").exists()  # a finished job is skipped on resume
-    weights = torch.load(keep / done.name / "model.ckpt", weights_only=True)  # its final weights, no optimizer
+    weights = torch.load(
+        keep / done.name / "model.ckpt", weights_only=True
+    )  # its final weights, no optimizer
     assert "optimizer_states" not in weights and weights["global_step"] == 50_000
     assert (keep / unfinished.name / "checkpoints" / "last.ckpt").read_bytes() == b"weights"
     assert "unfinished" in out and (unfinished / "checkpoints" / "last.ckpt").is_file()  # nothing moved
@@ -185,3 +187,19 @@ def test_the_trained_grid_is_every_cell_and_the_seeds_at_the_budget_in_the_claim
     assert unset.train.max_steps is None
     with pytest.raises(ConfigError, match="train.max_steps"):
         check_train_config(unset)
+
+
+def test_the_trained_comparison_is_the_original_with_the_grids_recipe_at_the_budget():
+    cfg = _compose_sweep("versus_trained", ["train.max_steps=50000"])
+    grid = _compose_sweep("fig9_trained", ["train.max_steps=50000"])
+    assert cfg.model.name == "original" and (cfg.model.latent_size, cfg.model.mp_steps) == (128, 10)
+    assert (
+        cfg.model.mlp_hidden_layers == 2 and cfg.model.history == 5 and cfg.model.type_encoding == "embedding"
+    )
+    assert cfg.model.radius_scale == 1.0 and cfg.model.noise_std == 6.7e-4  # its own radius and noise
+    assert cfg.train.noise_std is None and cfg.train.noise_decay is None
+    for key in ("max_steps", "lr_init", "lr_final", "lr_decay_start", "lr_decay_end", "mirror"):
+        assert cfg.train[key] == grid.train[key], key
+    assert cfg.trainer.precision == grid.trainer.precision and cfg.data.root == grid.data.root
+    assert cfg.train.curve_every_n_steps == 5_000 and cfg.train.val_max_trajectories == 8  # figure 7's curve
+    assert dict(cfg.hydra.sweeper.params) == {"model": "original", "seed": "0"}
