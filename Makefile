@@ -169,6 +169,7 @@ fig9-trained: install ## Figure 9 of trained models: 16 cells + seeds 1-2 of 16/
 	$(PY) -m gnsx.evaluation.report $(FIG9_TRAINED_DIR) --out docs/fig9 --wandb disabled
 	$(PY) -m gnsx.evaluation.report.claims --grid docs/fig9 --compare docs/fig9/steps_10k \
 		--radius docs/radius --versus docs/original-vs-simplified --out docs/fig9
+	$(PY) -m gnsx.evaluation.report.grid_motion $(FIG9_TRAINED_DIR) --data data/small_400 --out docs/fig9
 
 fig9-trained-keep: ## Copy the trained grid's jobs to docs/fig9/jobs to commit: records of finished jobs, last.ckpt of unfinished ones
 	@BUDGET_DIR=$(FIG9_TRAINED_DIR) KEEP=$(FIG9_TRAINED_KEEP) bash scripts/keep_jobs.sh
