@@ -55,7 +55,7 @@ def compare_models(
     WaterRamps' box or, for more particles than it holds, a square box of side
     :func:`gnsx.perf.scaling.scaling_side`."""
     # WaterRamps' box, grown (side proportional to sqrt(N) * spacing) for scenes it cannot hold.
-    from gnsx.perf.scaling import scaling_side
+    from gnsx.perf.scaling import device_name, scaling_side
 
     side = scaling_side(num_particles, spacing)
     bounds = WATERRAMPS["bounds"] if side <= 0.8 else [[0.1, 0.1 + side]] * 2
@@ -64,7 +64,8 @@ def compare_models(
         simulator = build_model(name, radius, bounds=bounds, compile=compile).to(device)
         sequence, particle_type = packed_scene(num_particles, spacing, bounds, simulator.history)
         result = measure_inference(simulator, sequence, particle_type, warmup=warmup, repeats=repeats)
-        results[name] = result | {"parameters": simulator.num_parameters()}
+        results[name] = result | {"parameters": simulator.num_parameters(), "threads": torch.get_num_threads(),
+                                  "device_name": device_name(torch.device(device))}  # fmt: skip
         del simulator
     return results
 
@@ -80,6 +81,9 @@ def format_results(results: dict[str, dict]) -> str:
             f"{name:<{width}} {r['parameters']:>9} {r['num_particles']:>9} {r['num_edges']:>7} "
             f"{r['ms_per_frame']:>9.2f} {peak:>8}  {r['device']} ({r['memory_measure']})"
         )
+    first = next(iter(results.values()), {})
+    if first.get("device_name"):
+        lines.append(f"on {first['device_name']}, {first.get('threads', '?')} torch threads")
     if {"simplified", "original"} <= set(results):
         s, o = results["simplified"], results["original"]
         line = f"original / simplified: {o['ms_per_frame'] / s['ms_per_frame']:.2f}x time"

@@ -29,7 +29,6 @@ from __future__ import annotations
 import gc
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -41,6 +40,7 @@ import numpy as np
 import torch
 
 from gnsx.core.constants import KINEMATIC_PARTICLE_ID
+from gnsx.core.machine import cpu_name
 from gnsx.data.waterramps import WATERRAMPS
 from gnsx.evaluation.timing import measure_inference, memory_peak, memory_start, packed_scene
 from gnsx.model.registry import MODELS, build_model
@@ -313,7 +313,7 @@ def run_scaling(
         "date": datetime.now().isoformat(timespec="seconds"),
         "command": " ".join(["python -m gnsx.perf.benchmark", *sys.argv[1:]]) if sys.argv else "",
         "device": str(dev),
-        "device_name": _device_name(dev),
+        "device_name": device_name(dev),
         "threads": torch.get_num_threads(),
         # The BLAS/OpenMP pools of numpy and scipy beside torch's (threadpoolctl): what else may compete.
         "thread_pools": _thread_pools(),
@@ -379,16 +379,12 @@ def _thread_pools() -> list[dict]:
     return [{key: pool.get(key) for key in keys} for pool in threadpool_info()]
 
 
-def _device_name(device: torch.device) -> str:
+def device_name(device: torch.device) -> str:
+    """The GPU's name, or the CPU's with its generation and matrix extensions (:func:`gnsx.core.machine.cpu_name`):
+    a CPU timing depends on which kind of machine it ran on."""
     if device.type == "cuda":
         return torch.cuda.get_device_name(device)
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return f"{line.split(':', 1)[1].strip()} ({os.cpu_count()} cores)"
-    except OSError:
-        pass
-    return platform.processor() or "cpu"
+    return cpu_name()
 
 
 def _measure(

@@ -139,7 +139,22 @@ def measure_training(
         "samples_per_s": steps_per_s * batch_size * devices,
         "ms_per_step": 1000.0 / steps_per_s,
         "window_steps_per_s": rates,
+        "device_name": _device_name(device),
     }
+
+
+def _device_name(device: str) -> str:
+    """The GPU's or the CPU's name (the CPU's generation and matrix extensions: gnsx.core.machine); older
+    checkouts without gnsx.core.machine (module docstring) get the bare platform name."""
+    if device == "cuda":
+        return torch.cuda.get_device_name()
+    try:
+        from gnsx.core.machine import cpu_name
+    except ImportError:
+        import platform
+
+        return platform.processor() or "cpu"
+    return cpu_name()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -219,6 +234,8 @@ def _main(argv: list[str]) -> int:
                     + (f" x {args.devices} DDP processes" if args.devices > 1 else ""),
                     flush=True,
                 )
+    if results and report:
+        print(f"on {results[0]['device_name']}")
     if args.json and report:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
