@@ -24,6 +24,9 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 install: $(VENV)/.installed ## Create .venv and install gnsx with its dependencies (torch pinned first)
+	@# The fused CPU inference kernels (gnsx/model/fused.py): built once per machine (~30 s), cached after.
+	@$(PY) -c "import sys; from gnsx.model import fused; sys.exit(fused.build())" || \
+		echo "warning: no C++ toolchain for the fused kernels; gnsx runs its eager path (same results, slower)"
 
 demo: install ## Main job: generate the small preset, train the simplified GNS, evaluate, render (<= 15 min on CPU)
 	$(PY) train.py

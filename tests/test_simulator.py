@@ -236,9 +236,12 @@ def test_pushforward_starts_the_loss_step_where_the_model_got_to(name):
     )
     predicted, target = pair(0.0)
     # By hand: the model's own two steps from the oldest frames, then one step scored against the truth.
+    # Without gradient, as in training (so on the same path: the fused CPU kernels where they apply).
     pushed = window[:, : simulator.input_frames]
     for _ in range(steps):
-        pushed = torch.cat([pushed[:, 1:], simulator.predict_positions(pushed, types).unsqueeze(1)], dim=1)
+        with torch.no_grad():
+            following = simulator.predict_positions(pushed, types)
+        pushed = torch.cat([pushed[:, 1:], following.unsqueeze(1)], dim=1)
     assert not torch.equal(pushed[:, -1], window[:, -1])  # the model drifted: the test has something to see
     assert torch.allclose(predicted, simulator(pushed, types))
     # The drift is treated as the noise is: the target keeps the position deviation, undoes the velocity's.

@@ -37,6 +37,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from gnsx.model import fused
 from gnsx.model.culling import plan_culling
 from gnsx.model.edge_ops import add_product_, gather_sum, receiver_offsets, segment_sum
 from gnsx.model.padding import needs_padding, pad_graph
@@ -63,6 +64,12 @@ class MLP(nn.Sequential):
         if layer_norm:
             layers.append(nn.LayerNorm(out_size))
         super().__init__(*layers)
+
+    def forward(self, rows: Tensor) -> Tensor:
+        # Inference on the CPU: the whole MLP in row tiles, no pass over memory per layer (gnsx.model.fused).
+        if fused.runs(rows) and fused.mlp_layers(self):
+            return fused.mlp(self, [rows], [self.first.weight])
+        return super().forward(rows)
 
     @property
     def first(self) -> nn.Linear:
@@ -127,6 +134,24 @@ class InteractionNetwork(nn.Module):
             offsets = receiver_offsets(receivers, receiver_x.shape[0])
         first = self.edge_mlp.first
         weight_edge, weight_receiver, weight_sender = first.weight.split(latent, dim=1)  # [H, L] each
+        node_mlp = self.node_mlp
+        weight_aggregated, weight_node = node_mlp.first.weight.split(latent, dim=1)
+        if fused.edge_step_runs(self.edge_mlp, offsets, x, edge_attr) and fused.mlp_layers(node_mlp):
+            # Inference on the CPU: phi_e, the sum and the edge update in L2-sized edge tiles, phi_v in node
+            # tiles (gnsx.model.fused); same arithmetic, no pass over memory per layer. Both node terms of
+            # phi_e's first layer in one [N, 2H] product (the bias only on the receiver half).
+            hidden_size = first.out_features
+            node_terms = torch.addmm(
+                torch.cat([first.bias, first.bias.new_zeros(hidden_size)]),
+                x,
+                torch.cat([weight_receiver, weight_sender]).t(),
+            )  # [N, 2H]
+            edge_attr, aggregated = fused.edge_step(
+                self.edge_mlp, node_terms[: receiver_x.shape[0], :hidden_size], node_terms[:, hidden_size:],
+                edge_attr, senders, receivers, offsets, self.edge_residual,
+            )  # fmt: skip
+            x = fused.mlp(node_mlp, [aggregated, receiver_x], [weight_aggregated, weight_node], receiver_x)
+            return x, edge_attr
         # phi_e's first layer, node parts once per node; the bias joins the R x H receiver term rather than
         # being broadcast over the E edges.
         receiver_term = torch.addmm(first.bias, receiver_x, weight_receiver.t())  # [R, H]
@@ -137,12 +162,10 @@ class InteractionNetwork(nn.Module):
         messages = self.edge_mlp.after_first(hidden)  # [E, L]
         # Sum over each receiver's incoming edges; backward is messages.grad = grad.index_select(receivers).
         aggregated = segment_sum(messages, receivers, offsets, receiver_x.shape[0])  # [R, L]
-        node_first = self.node_mlp.first
-        weight_aggregated, weight_node = node_first.weight.split(latent, dim=1)
         node_hidden = add_product_(
-            torch.addmm(node_first.bias, receiver_x, weight_node.t()), aggregated, weight_aggregated.t()
+            torch.addmm(node_mlp.first.bias, receiver_x, weight_node.t()), aggregated, weight_aggregated.t()
         )
-        x = receiver_x + self.node_mlp.after_first(node_hidden)
+        x = receiver_x + node_mlp.after_first(node_hidden)
         edge_attr = edge_attr + messages if self.edge_residual else messages
         return x, edge_attr
 

@@ -72,7 +72,13 @@ def radius_graph(
         senders = torch.cat([senders, loop])
     # Receiver-major order: a sorted receiver index makes sum aggregation cache friendly and the edge
     # list identical across back ends.
-    order = torch.argsort(receivers * num_particles + senders)
+    keys = receivers * num_particles + senders  # unique per edge: any sort gives the same order
+    if keys.device.type == "cpu":
+        # numpy's argsort (SIMD-sorted int64) is ~4x torch's on a 16k-edge frame (0.33 against 1.38 ms,
+        # 2 threads): the sort was ~5% of the simplified model's fused CPU frame.
+        order = torch.from_numpy(np.argsort(keys.numpy()))
+    else:
+        order = torch.argsort(keys)
     return torch.stack([senders[order], receivers[order]])
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import sys
 import time
@@ -34,6 +35,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID, WATER_PARTICLE_ID
 from gnsx.core.threads import apply_threads
 from gnsx.data.waterramps import WATERRAMPS
 from gnsx.evaluation.timing import measure_inference, packed_scene
+from gnsx.model import fused
 from gnsx.model.culling import plan_culling
 from gnsx.model.registry import DEFAULT_MODELS, MODELS, build_model  # noqa: F401 (re-exported for the CLI)
 from gnsx.model.simulator import LearnedSimulator
@@ -461,6 +463,11 @@ def main(argv: list[str] | None = None) -> int:
         help="model.compile on (torch.compile of the network's blocks; warm-up includes compiling)",
     )
     parser.add_argument(
+        "--no-fused",
+        action="store_true",
+        help="the eager edge block instead of the fused kernel (gnsx.model.fused; GNSX_FUSED_EDGE=0)",
+    )
+    parser.add_argument(
         "--json",
         type=Path,
         default=None,
@@ -513,6 +520,8 @@ def main(argv: list[str] | None = None) -> int:
     freeze.add_argument("--trajectories", type=int, default=16)
     args = parser.parse_args(argv)
     apply_threads(args.threads or None)
+    if args.no_fused:
+        os.environ[fused.ENV] = "0"
     if args.freeze_check:
         if args.freeze_speed is None:
             parser.error("--freeze-check needs --freeze-speed")

@@ -43,6 +43,7 @@ from gnsx.core.constants import KINEMATIC_PARTICLE_ID
 from gnsx.core.machine import cpu_name
 from gnsx.data.waterramps import WATERRAMPS
 from gnsx.evaluation.timing import measure_inference, memory_peak, memory_start, packed_scene
+from gnsx.model import fused
 from gnsx.model.registry import MODELS, build_model
 from gnsx.model.training_targets import noisy_training_pair
 from gnsx.perf.flops import forward_flops, training_flops
@@ -328,6 +329,7 @@ def run_scaling(
         "sizes": [int(n) for n in sizes],
         "models": list(models),
         "compile": bool(compile),
+        "fused": fused.enabled() and fused.load(),
     }
     log(f"matmul peak ({dev}, {meta['threads']} threads) ...")
     meta["matmul_start"] = matmul_peak(dev, matmul_size)
