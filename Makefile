@@ -11,7 +11,7 @@ DATA ?= data/small
 RUN ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep fig9-trained fig9-trained-keep versus-trained pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull clean study study-serve install-browser validate-mpm sensitivity
+.PHONY: help install demo train test test-slow lint format data data-waterramps budget budget-keep fig9-trained fig9-trained-keep versus-trained pretrain pretrain-pairwise pretrain-gpu pretrain-dam waterramps-eval bench-train evaluate simulate hardcases fig9-mini radius-mini learning learning-long learning-long-keep demo-choice equal-budget fig9 radius report bench bench-cull bench-bound clean study study-serve install-browser validate-mpm sensitivity
 
 help: ## Show this help
 	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
@@ -287,6 +287,9 @@ hardcases: install ## Hard-case suite (jets, collisions, pool at rest, 10x scene
 
 bench: install ## Scaling benchmark: ms/frame, memory, GFLOP/s vs particles (1k-100k), simplified / simplified_pairwise / original, inference + training; JSON + plot in outputs/bench (ARGS='--threads 2', '--device cuda', '--particles 2300': one size)
 	$(PY) -m gnsx.perf.benchmark $(ARGS)
+
+bench-bound: install ## The frame against the naive-FLOP bound: fused and eager CPU kernels interleaved in one process (docs/speed.md; ARGS='--models simplified original --threads 2')
+	$(PY) -m gnsx.perf.bound $(ARGS)
 
 bench-cull: install ## ms/frame with and without exact culling, 5 scenes at WaterRamps size and 10x (ARGS='--threads 2 --models simplified original')
 	$(PY) -m gnsx.perf.benchmark --cull $(ARGS)

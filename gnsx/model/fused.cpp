@@ -85,15 +85,19 @@ inline void small_k_product(int64_t n, int64_t H, int64_t K, const float* A, int
   }
 }
 
-// LayerNorm over each row of x[n, width] in place (biased variance, as torch.nn.LayerNorm); each row is in L1.
-inline void layer_norm_rows(float* x, int64_t n, int64_t width, const float* __restrict__ gamma,
-                            const float* __restrict__ beta, float eps) {
+// LayerNorm over each row of x + bias ([n, width], in place; biased variance, as torch.nn.LayerNorm); each
+// row is in L1 after the first pass.
+inline void layer_norm_rows(float* x, int64_t n, int64_t width, const float* __restrict__ bias,
+                            const float* __restrict__ gamma, const float* __restrict__ beta, float eps) {
   const float inv_width = 1.0f / static_cast<float>(width);
   for (int64_t r = 0; r < n; ++r) {
     float* __restrict__ row = x + r * width;
     float mean = 0.0f;
 #pragma omp simd reduction(+ : mean)
-    for (int64_t c = 0; c < width; ++c) mean += row[c];
+    for (int64_t c = 0; c < width; ++c) {
+      row[c] += bias[c];
+      mean += row[c];
+    }
     mean *= inv_width;
     float var = 0.0f;
 #pragma omp simd reduction(+ : var)
@@ -153,9 +157,13 @@ struct Tail {
       std::copy(scratch, scratch + n * hidden, h);
       relu_(h, n * hidden);
     }
-    fill_rows(out_rows, b_out, n, out);
-    rows_times_weight_t(n, out, hidden, h, hidden, w_out, ld_out, 1.0f, out_rows, out);
-    if (gamma != nullptr) layer_norm_rows(out_rows, n, out, gamma, beta, eps);
+    if (gamma != nullptr) {  // the output bias joins LayerNorm's first pass instead of a pass of its own
+      rows_times_weight_t(n, out, hidden, h, hidden, w_out, ld_out, 0.0f, out_rows, out);
+      layer_norm_rows(out_rows, n, out, b_out, gamma, beta, eps);
+    } else {
+      fill_rows(out_rows, b_out, n, out);
+      rows_times_weight_t(n, out, hidden, h, hidden, w_out, ld_out, 1.0f, out_rows, out);
+    }
   }
 };
 
