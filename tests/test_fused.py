@@ -132,6 +132,17 @@ def test_training_keeps_the_eager_path(monkeypatch):
     assert simulator.network.processor[0].edge_mlp.first.weight.grad is not None
 
 
+def test_autocast_keeps_the_eager_path(monkeypatch):
+    """bf16-mixed training's pushforward steps run without gradient but under CPU autocast: eager."""
+    calls = []
+    monkeypatch.setattr(fused, "edge_step", lambda *a, **k: calls.append(1))
+    simulator = build_model("simplified")
+    node_features, edge_index, edge_attr = _graph(simulator, num_particles=100)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        out = simulator.network(node_features, edge_index, edge_attr)
+    assert not calls and torch.isfinite(out).all()
+
+
 def test_switch_off_keeps_the_eager_path(monkeypatch):
     calls = []
     monkeypatch.setattr(fused, "edge_step", lambda *a, **k: calls.append(1))

@@ -18,7 +18,7 @@ When they run (:func:`runs`), and why only then:
 
 - **no autograd** (``torch.is_grad_enabled()`` false: rollouts, evaluation, validation, the benchmark): the
   kernels have no backward; training keeps the eager path, whose gradients the tests check;
-- fp32 tensors on the CPU (bf16 training and GPUs keep the eager path); the edge step also needs
+- fp32 tensors on the CPU, outside autocast (bf16 training and GPUs keep the eager path); the edge step also needs
   receiver-sorted edges (the radius graph and the culling plan sort them);
 - not inside ``torch.compile`` (``model.compile``), whose traced graph keeps the eager ops;
 - the kernels built. ``torch.utils.cpp_extension`` compiles them once per machine and caches them under
@@ -153,6 +153,10 @@ def edge_step_runs(edge_mlp: nn.Sequential, offsets: Tensor | None, *tensors: Te
 def runs(*tensors: Tensor) -> bool:
     """Whether the fused kernels may replace the eager ops on these tensors (module docstring, "When")."""
     if torch.is_grad_enabled() or not enabled():
+        return False
+    # Under CPU autocast (bf16-mixed training's pushforward steps, which run without gradient) the products
+    # come out bf16: the eager path, whose autocast handling gnsx.model.padding and add_product_ provide.
+    if torch.is_autocast_enabled("cpu"):
         return False
     for tensor in tensors:
         if tensor.device.type != "cpu" or tensor.dtype != torch.float32 or tensor.dim() != 2:
