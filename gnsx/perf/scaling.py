@@ -474,7 +474,8 @@ def format_scaling(results: dict) -> str:
     lines = [
         f"device {meta['device_name']} ({meta['device']}), {meta['threads']} torch threads, "
         f"torch {meta['torch']}; load average {load}"
-        + ("; model.compile on (torch.compile)" if meta.get("compile") else ""),
+        + ("; model.compile on (torch.compile)" if meta.get("compile") else "")
+        + ("" if cuda else "; inference " + ("fused CPU kernels" if meta.get("fused_edge") else "eager")),
         "ms/frame: median after warm-up, graph build included; training: one optimizer step / batch size. "
         "x linear: ms/frame over N/N_ref x ms/frame at N_ref. Memory: "
         + ("CUDA max allocated" if cuda else "CPU peak-RSS increase (lower bound)"),
