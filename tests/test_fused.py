@@ -195,3 +195,13 @@ def test_bound_tool_reports_both_paths(tmp_path):
     assert row["eager_ms"] > 0 and row["fused_ms"] > 0 and row["bound_ms"] > 0
     assert row["max_abs_difference"] < 1e-4
     assert row["fused_over_bound"] == pytest.approx(row["fused_ms"] / row["bound_ms"])
+
+
+def test_a_graph_without_edges(monkeypatch):
+    """Particles farther apart than the radius: no edges, every aggregate 0, same output as eager."""
+    simulator = build_model("simplified")
+    node_features = torch.randn(5, simulator.network.node_encoder.first.in_features)
+    edge_index = torch.zeros(2, 0, dtype=torch.long)
+    edge_attr = torch.zeros(0, simulator.network.edge_encoder.first.in_features)
+    eager, fast = _both(monkeypatch, lambda: simulator.network(node_features, edge_index, edge_attr))
+    _close(fast, eager)
