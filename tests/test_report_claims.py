@@ -23,7 +23,9 @@ from gnsx.evaluation.report.claims import (
     claim_memory,
     claim_pareto,
     claim_radius,
+    claim_training_time,
     claim_width,
+    hours_to_final,
     main,
 )
 
@@ -204,9 +206,52 @@ def test_on_the_real_reports(tmp_path, capsys):
             "--out", str(tmp_path)]  # fmt: skip
     assert main(argv) == 0
     claims = json.loads((tmp_path / "claims.json").read_text())["claims"]
-    assert [c["number"] for c in claims] == list(range(1, 9))
+    assert [c["number"] for c in claims] == list(range(1, 10))
     assert all(c["verdict"] in (REPRODUCED, NOT_REPRODUCED, UNTOLD) for c in claims)
     assert all(c["from"] for c in claims)
     markdown = (tmp_path / "claims.md").read_text()
     assert markdown == capsys.readouterr().out.rstrip("\n") + "\n"
-    assert sum(line.startswith(f"| {n} |") for line in markdown.splitlines() for n in range(1, 9)) == 8
+    assert sum(line.startswith(f"| {n} |") for line in markdown.splitlines() for n in range(1, 10)) == 9
+
+
+def _clock(grid_folder: Path, hours: dict[tuple, float], curves: dict[tuple, list[tuple]] | None = None):
+    """Give the grid's jobs a training clock (hours) and, for some, a validation curve [(hours, mse)]."""
+    for job in (grid_folder / "jobs").iterdir():
+        config = json.loads((job / ".hydra" / "config.yaml").read_text())["model"]
+        key = (config["latent_size"], config["mp_steps"])
+        results = json.loads((job / "results.json").read_text())
+        results["training_s"] = 3600 * hours[key]
+        (job / "results.json").write_text(json.dumps(results))
+        for h, mse in (curves or {}).get(key, []):
+            with open(job / "curve.jsonl", "a") as f:
+                f.write(
+                    json.dumps({"kind": "val", "step": int(h * 1000), "time_s": 3600 * h, "rollout_mse": mse})
+                )
+                f.write("\n")
+
+
+def test_training_time_claim_from_clocks_and_curves(tmp_path):
+    jobs = {(64, 5): _spec(1.0), (128, 10): _spec(1.0, mp=10, latent=128)}
+    folder = make_grid(tmp_path / "grid", jobs)
+    _clock(folder, {(64, 5): 1.0, (128, 10): 3.5})
+    claim = claim_training_time(load_grid(folder))
+    assert claim["verdict"] == REPRODUCED and "3.50x" in claim["measurement"]
+    # 128/10 reached its final error (within 10%) at 2 h of its 3.5: 2x, below 3 / 1.15.
+    curve = [(1.0, 0.05), (2.0, 0.0105), (3.5, 0.0100)]
+    _clock(folder, {(64, 5): 1.0, (128, 10): 3.5}, {(128, 10): curve})
+    job = next(p for p in (folder / "jobs").iterdir() if "latent_size=128" in p.name)
+    assert hours_to_final(job) == (pytest.approx(2.0), "curve")
+    claim = claim_training_time(load_grid(folder))
+    assert claim["verdict"] == NOT_REPRODUCED and "2.00x" in claim["measurement"]
+
+
+def test_training_time_is_held_back_when_the_faster_model_ends_worse(tmp_path):
+    jobs = {(64, 5): _spec(2.0), (128, 10): _spec(1.0, mp=10, latent=128)}
+    folder = make_grid(tmp_path / "grid", jobs)
+    _clock(folder, {(64, 5): 1.0, (128, 10): 4.0})
+    claim = claim_training_time(load_grid(folder))
+    assert claim["verdict"] == UNTOLD and "time alone: reproduced" in claim["measurement"]
+    assert (
+        claim_training_time(load_grid(make_grid(tmp_path / "bare", jobs, rows=False)))["verdict"]
+        == NOT_MEASURED
+    )

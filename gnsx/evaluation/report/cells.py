@@ -67,6 +67,8 @@ class Cell:
     baseline: tuple
     ms: float | None
     mb: float | None
+    #: The cell's jobs, one per seed (empty when the report folder has no ``jobs/``).
+    jobs: tuple = ()
 
     @property
     def label(self) -> str:
@@ -82,7 +84,7 @@ def _cell(key: tuple, row: dict, jobs: list[Job]) -> Cell:
     if n > 1:
         mse, se = mean_se(j.spread("rollout_mse")[0] for j in jobs)
         ratios = [r["baseline_mse"] / r["rollout_mse"] for r in rows if len(r) == 3]  # both keys kept
-        return Cell(*key, row, n, rows, mse, se, geometric_mean_interval(ratios)[:3], ms, mb)
+        return Cell(*key, row, n, rows, mse, se, geometric_mean_interval(ratios)[:3], ms, mb, tuple(jobs))
     baseline = tuple(
         finite_or_none(row[c]) for c in ("baseline_ratio", "baseline_ratio_lo", "baseline_ratio_hi")
     )
@@ -96,6 +98,7 @@ def _cell(key: tuple, row: dict, jobs: list[Job]) -> Cell:
         baseline,
         ms,
         mb,
+        tuple(jobs),
     )
 
 

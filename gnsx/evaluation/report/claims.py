@@ -41,6 +41,13 @@ Verdicts ("reproduced", "not reproduced", "cannot be told at this budget"), deci
 * 8 (``--versus``): quality: simplified / original rollout MSE, paired, reproduced below 1, not above, else
   cannot be told; speed, memory: original / simplified (no interval recorded) against the paper's 2.3x and 3.3x,
   reproduced at the paper's or more, not reproduced at the paper's / 1.15 or less, else cannot be told.
+* 9 (training time; the paper: 12 h for the simplified model against 36 h for the original): 128/10's hours
+  to its final error over 64/5's (seed means; no interval), reproduced at 3x or more, not reproduced at 3x /
+  1.15 or less, else cannot be told. A run's hours to its final error: the training clock (validation
+  excluded) at its first validation whose rollout MSE is within :data:`FINAL_MARGIN` of its last one's
+  (``curve.jsonl``); a run without a curve counts its whole training clock (``training_s``). When 64/5 ends
+  worse than 128/10 beyond the paired interval, a "reproduced" becomes "cannot be told" (its shorter time was
+  not to the same error).
 * A claim in parts: not reproduced when any part is, reproduced when all are, else cannot be told.
 """
 
@@ -58,6 +65,7 @@ from scipy import stats
 from gnsx.core.atomic import write_json
 from gnsx.core.cli import run_main
 from gnsx.core.errors import DataError
+from gnsx.evaluation.curve_file import read_curve
 from gnsx.evaluation.report.analysis import pareto_front, ratio_text
 from gnsx.evaluation.report.cells import (
     Cell,
@@ -77,6 +85,9 @@ TIMING_TOLERANCE = 1.15  #: time (or memory) ratio within which two figures are 
 LINEAR_MARGIN = 0.10  #: the curvature's largest share of the cost for the cost to count as linear
 PAPER_SPEEDUP, PAPER_MEMORY = 2.3, 3.3  #: the paper's original / simplified time and memory per frame
 WATERRAMPS_RADIUS = 0.015  #: DeepMind's WaterRamps connection radius (data units)
+PAPER_TRAINING = 3.0  #: the paper's original / simplified training time (36 h / 12 h)
+FINAL_MARGIN = 1.10  #: a validation within 10% of the run's last one has reached its final error
+ORIGINAL_CELL = (128, 10)  #: the grid's cell with the original GNS's width and depth
 CLAIMS = {
     1: "The 64/5 model (embedding size 64, 5 message-passing steps) sits on the Pareto front of speed "
        "against error.",
@@ -87,6 +98,7 @@ CLAIMS = {
     6: "Memory grows with the embedding size.",
     7: "A radius of 0.014-0.020 (WaterRamps) helps; a larger one confuses the model and dramatically slows it.",
     8: "The simplified model keeps the original's quality with 2.3x faster inference and 3.3x less memory.",
+    9: "The simplified model trains in about 3x less time than the original (12 h against 36 h).",
 }  # fmt: skip
 
 
@@ -255,6 +267,65 @@ def claim_memory(grid: Grid) -> dict:
     return _row(6, REPRODUCED if lo > 1 else NOT_REPRODUCED if hi <= 1 else UNTOLD, text, grid.sources)
 
 
+def training_hours(job_folder: Path) -> float | None:
+    """A run's whole training clock in hours (``results.json`` ``training_s``; records older than it carry only
+    ``train_wall_s``, trainer.fit's wall time with its validations), None without either."""
+    record = (
+        json.loads((job_folder / "results.json").read_text())
+        if (job_folder / "results.json").is_file()
+        else {}
+    )
+    seconds = record.get("training_s", record.get("train_wall_s"))
+    return None if seconds is None else float(seconds) / 3600
+
+
+def hours_to_final(job_folder: Path) -> tuple[float | None, str]:
+    """Hours of one thread's training clock until a run reached its final error (claim 9 of the module
+    docstring), and how it was measured ("curve" or "whole run"); None without a record."""
+    curve_path = job_folder / "curve.jsonl"
+    vals = read_curve(curve_path)["val"] if curve_path.is_file() else []
+    vals = [v for v in vals if v.get("rollout_mse") is not None and v.get("time_s") is not None]
+    if vals:
+        final = vals[-1]["rollout_mse"]
+        first = next(v for v in vals if v["rollout_mse"] <= FINAL_MARGIN * final)
+        return float(first["time_s"]) / 3600, "curve"
+    hours = training_hours(job_folder)
+    return hours, "whole run" if hours is not None else "no record"
+
+
+def _cell_hours(cell: Cell) -> tuple[float | None, str, float | None]:
+    """(seed-mean hours to the final error, how measured, seed-mean whole training clock in hours)."""
+    measured = [hours_to_final(job.folder) for job in cell.jobs]
+    hours = [h for h, _ in measured if h is not None]
+    whole = [h for job in cell.jobs if (h := training_hours(job.folder)) is not None]
+    how = "/".join(sorted({m for h, m in measured if h is not None})) or "no record"
+    return (float(np.mean(hours)) if hours else None), how, (float(np.mean(whole)) if whole else None)
+
+
+def claim_training_time(grid: Grid) -> dict:
+    ref, big = grid.cell(*PAPER_CELL), grid.cell(*ORIGINAL_CELL)
+    if ref is None or big is None or not ref.jobs or not big.jobs:
+        return _row(9, NOT_MEASURED, "needs the 64/5 and 128/10 cells with their jobs", grid.sources)
+    (h_ref, how_ref, whole_ref), (h_big, how_big, whole_big) = _cell_hours(ref), _cell_hours(big)
+    if not h_ref or not h_big:
+        return _row(9, NOT_MEASURED, "no training clock recorded for 64/5 or 128/10", grid.sources)
+    ratio, quality = h_big / h_ref, _paired(big, ref)
+    verdict = _factor(ratio, PAPER_TRAINING)
+    held = ""
+    if verdict == REPRODUCED and _side(quality) > 0:  # faster, but to a worse error: not the paper's claim
+        verdict, held = (
+            UNTOLD,
+            " 64/5 ends worse beyond the interval, so its shorter time is not to the same error"
+            f" (time alone: {REPRODUCED}).",
+        )
+    whole = f"; whole runs {whole_big:.2f} h against {whole_ref:.2f} h" if whole_ref and whole_big else ""
+    text = (f"Hours of one thread to the final error (within {FINAL_MARGIN - 1:.0%} of the last validation; "
+            f"128/10 by {how_big}, 64/5 by {how_ref}): 128/10 {h_big:.2f} h against 64/5 {h_ref:.2f} h, "
+            f"{ratio:.2f}x (the paper: {PAPER_TRAINING:g}x){whole}. Rollout MSE 64/5 / 128/10, paired: "
+            f"{_x(quality)}.{held}")  # fmt: skip
+    return _row(9, verdict, text, grid.sources)
+
+
 def claim_radius(folder: Path | None, preset_radius: float) -> dict:
     if folder is None or not (folder / "results.csv").is_file():
         return _row(7, NOT_MEASURED, f"{folder}/results.csv: no such file" if folder else "no --radius", [])
@@ -344,7 +415,7 @@ def build(grid: Path, out: Path, compare_grid: Path | None = None, radius: Path 
     g = grids[0]
     claims = [claim_pareto(g), claim_width(g, 2, 16, +1), claim_width(g, 3, 128, -1), claim_depth(g),
               claim_linear_cost(g), claim_memory(g), claim_radius(radius, preset_radius),
-              claim_versus(versus)]  # fmt: skip
+              claim_versus(versus), claim_training_time(g)]  # fmt: skip
     table = side_by_side(grids)
     text = markdown(claims, table, grids)
     out.mkdir(parents=True, exist_ok=True)
