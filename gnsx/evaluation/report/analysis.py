@@ -279,6 +279,30 @@ def cells_against_seeds(jobs: Sequence[Job], key: str = "rollout_mse") -> dict |
             "p": float(stats.f.sf(ratio, len(primary) - 1, df_seeds))}  # fmt: skip
 
 
+def seeds_for_power(test: dict, power: float = 0.8, alpha: float = 0.05, most: int = 20) -> int | None:
+    """Seeds per cell with which :func:`cells_against_seeds` would find the cells apart (p < ``alpha``) with
+    probability ``power``, if every cell were trained that many times and entered as its seeds' mean.
+
+    One-way random-effects model on log10 errors, from the test's own estimates: seed variance s^2 =
+    ``sd_seeds``^2, cell variance c^2 = ``sd_cells``^2 - s^2 (the lowest seeds hold one seed's scatter too).
+    With k seeds a cell mean scatters by c^2 + s^2 / k, and F / (1 + k c^2 / s^2) follows F(cells - 1,
+    cells (k - 1)), so the power is ``P(F(cells - 1, cells (k - 1)) > F_crit / (1 + k c^2 / s^2))``. None when
+    the estimated cell variance is not positive (no number of seeds would rank them) or above ``most``.
+    """
+    from scipy import stats
+
+    cells = int(test["cells"])
+    ratio = (test["sd_cells"] ** 2 - test["sd_seeds"] ** 2) / test["sd_seeds"] ** 2  # c^2 / s^2
+    if ratio <= 0 or cells < 2:
+        return None
+    for k in range(2, most + 1):
+        df1, df2 = cells - 1, cells * (k - 1)
+        critical = stats.f.ppf(1 - alpha, df1, df2)
+        if stats.f.sf(critical / (1 + k * ratio), df1, df2) >= power:
+            return k
+    return None
+
+
 #: How each swept axis enters :func:`axis_trends`: (transform, what one unit of it is).
 TREND_UNITS = {
     "latent_size": (math.log2, "doubling of the embedding size"),

@@ -19,7 +19,9 @@ Verdicts ("reproduced", "not reproduced", "cannot be told at this budget"), deci
   geometric mean of its seeds. An interval containing 1 tells nothing apart.
 * Seed gate: those intervals hold the trajectories' scatter, not retraining's. Where a grid's F test of cells
   against seeds (:func:`.analysis.cells_against_seeds`) gives p >= 0.05, retraining moves a cell as much as the
-  cells differ, and a verdict drawn from its cells' errors (1-4; 7's error parts) becomes "cannot be told".
+  cells differ, and a verdict drawn from its cells' errors (1-4; 7's error parts) becomes "cannot be told";
+  the text then says how many seeds per cell would rank the cells with 80% power
+  (:func:`.analysis.seeds_for_power`).
 * 1: not reproduced when a cell faster than 64/5 beyond the timing tolerance (its ms/frame x 1.15 at most
   64/5's) has a lower error beyond the interval; else reproduced when 64/5 is on the Pareto front of seed-mean
   ms/frame against seed-mean rollout MSE (:func:`.analysis.pareto_front`); else cannot be told.
@@ -66,7 +68,7 @@ from gnsx.core.atomic import write_json
 from gnsx.core.cli import run_main
 from gnsx.core.errors import DataError
 from gnsx.evaluation.curve_file import read_curve
-from gnsx.evaluation.report.analysis import pareto_front, ratio_text
+from gnsx.evaluation.report.analysis import pareto_front, ratio_text, seeds_for_power
 from gnsx.evaluation.report.cells import (
     Cell,
     Grid,
@@ -150,6 +152,11 @@ def _gate(verdict: str, grid: Grid) -> tuple[str, str]:
     if test is None:
         return verdict, "No cell has several seeds: the intervals hold the trajectories' scatter only."
     text = f"Cells against seeds: F({test['df_cells']}, {test['df_seeds']}) = {test['F']:.2f}, p = {test['p']:.2g}"
+    if test["p"] >= 0.05:
+        seeds = seeds_for_power(test)
+        text += (f" (seed sd {test['sd_seeds']:.3f}, cells' {test['sd_cells']:.3f} in log10 error; "
+                 + (f"{seeds} seeds per cell would rank them with 80% power)" if seeds else
+                    "no number of seeds up to 20 would rank them at these estimates)"))  # fmt: skip
     if test["p"] >= 0.05 and verdict in (REPRODUCED, NOT_REPRODUCED):
         return (
             UNTOLD,
