@@ -203,3 +203,14 @@ def test_the_trained_comparison_is_the_original_with_the_grids_recipe_at_the_bud
     assert cfg.trainer.precision == grid.trainer.precision and cfg.data.root == grid.data.root
     assert cfg.train.curve_every_n_steps == 5_000 and cfg.train.val_max_trajectories == 8  # figure 7's curve
     assert dict(cfg.hydra.sweeper.params) == {"model": "original", "seed": "0"}
+
+
+def test_the_trained_radius_sweep_is_the_grids_64_5_at_two_more_radii():
+    cfg = _compose_sweep("radius_trained", ["train.max_steps=50000"])
+    grid = _compose_sweep("fig9_trained", ["train.max_steps=50000"])
+    params = {k: str(v).split(",") for k, v in cfg.hydra.sweeper.params.items()}
+    assert params == {"fig9_cell": ["64x5"], "model.radius": ["0.058", "0.035"], "seed": ["0", "1"]}
+    for key in ("max_steps", "lr_init", "lr_final", "lr_decay_start", "lr_decay_end", "noise_std", "mirror"):
+        assert cfg.train[key] == grid.train[key], key
+    assert cfg.trainer.precision == "32-true" and cfg.sweep.name == "radius_trained"
+    assert (cfg.model.latent_size, cfg.model.mp_steps) == (64, 5)
